@@ -1,0 +1,214 @@
+"""``IntersectionEnv``: the paper's broken-traffic-light intersection as a gymnasium env."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, ClassVar, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+
+from frl.envs.config import TASKS, EnvConfig, RewardConfig
+from frl.envs.observation import OccupancyGrid
+from frl.envs.reward import RewardSignals, reward_terms
+from frl.envs.scenario import Scenario, build_scenario
+from frl.envs.sumo_backend import BRAKE_LIGHT_BIT, EGO_ID, SumoSimulation, VehicleState
+
+_SEED_BOUND = 2**31 - 1
+
+
+class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
+    """An agent car crosses a four-way intersection with broken lights among aggressive humans.
+
+    - Observation: the (26, 18, 3) float32 grid of Eq. (1) in the ego's frame
+      (:func:`frl.envs.observation.occupancy_grid`).
+    - Action: ``Box(-1, 1, (1,))``, an acceleration of ``action * accel_scale`` m/s^2.
+      The ego's speed is set every step: v <- clip(v + a * dt, 0, speed_limit).
+      Actions outside [-1, 1] are clipped; a non-finite action raises ``ValueError``.
+    - Reward: :class:`frl.envs.config.RewardConfig`; ``info["reward_terms"]`` holds the
+      weighted terms, which sum to the reward.
+    - Termination: the ego collides (it is in SUMO's colliding-vehicle list) or arrives.
+      Truncation: ``max_episode_steps`` steps without either.
+    - ``info``: ``task``, ``collision``, ``arrived``, ``travel_time_steps`` (steps taken
+      in this episode), ``reward_terms`` and ``ego_speed``.
+
+    One SUMO simulation runs across episodes: ``reset(seed=s)`` (re)starts it with
+    SUMO seed ``s``; a plain ``reset()`` removes the old ego and inserts a new one into
+    the traffic that kept flowing. The same seed and actions give the same episodes.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
+
+    def __init__(
+        self,
+        config: EnvConfig | None = None,
+        reward: RewardConfig | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
+        """``overrides`` replace fields of ``config`` (for ``gymnasium.make`` kwargs)."""
+        config = config if config is not None else EnvConfig()
+        if overrides:
+            config = dataclasses.replace(config, **overrides)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}"
+            )
+        if render_mode == "human" and config.backend != "traci":
+            raise ValueError("render_mode='human' opens sumo-gui, which needs backend='traci'")
+        self.config = config
+        self.reward_config = reward if reward is not None else RewardConfig()
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": round(1 / config.scenario.step_length)}
+
+        grid = config.grid
+        speed_high = config.scenario.speed_limit / grid.speed_scale
+        heading_high = 180.0 / grid.heading_scale_deg
+        low = np.broadcast_to(np.array([0.0, -heading_high, 0.0], np.float32), grid.shape)
+        high = np.broadcast_to(np.array([speed_high, heading_high, 1.0], np.float32), grid.shape)
+        self.observation_space = gym.spaces.Box(low.copy(), high.copy(), dtype=np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+        self._scenario: Scenario | None = None
+        self._simulation: SumoSimulation | None = None
+        self._task = config.task if config.task != "random" else TASKS[0]
+        self._steps = 0
+        self._done = True
+        self._ego_speed = 0.0
+        self._vehicles: list[VehicleState] | None = None
+        self._grid = OccupancyGrid(config.grid)
+
+    @property
+    def task(self) -> str:
+        """The current episode's task (drawn at reset when the config says ``random``)."""
+        return self._task
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start an episode. ``options={"task": ...}`` overrides the task for this episode."""
+        super().reset(seed=seed)
+        task = (options or {}).get("task", self.config.task)
+        if task == "random":
+            task = TASKS[int(self.np_random.integers(len(TASKS)))]
+        if task not in TASKS:
+            raise ValueError(f"unknown task {task!r}; choose one of {(*TASKS, 'random')}")
+        simulation = self._ensure_simulation()
+        if seed is not None or not simulation.is_running:
+            simulation.start(int(self.np_random.integers(_SEED_BOUND)))
+            for _ in range(self.config.warmup_steps):
+                simulation.step()
+        self._task = task
+        simulation.insert_ego(task)
+        simulation.step()
+        simulation.configure_ego()
+        self._vehicles = simulation.vehicles()
+        ego = _find_ego(self._vehicles)
+        if ego is None:
+            raise RuntimeError("SUMO did not insert the ego vehicle")
+        self._ego_speed = ego.speed
+        self._steps = 0
+        self._done = False
+        observation = self._grid(self._vehicles, ego)
+        return observation, self._info(collision=False, arrived=False, terms=None)
+
+    def step(
+        self, action: np.ndarray
+    ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        if self._done or self._simulation is None:
+            raise RuntimeError("step() called before reset() or after the episode ended")
+        acceleration = float(np.asarray(action, dtype=np.float64).reshape(-1)[0])
+        if not math.isfinite(acceleration):
+            raise ValueError(f"action must be finite, got {action!r}")
+        acceleration = min(max(acceleration, -1.0), 1.0) * self.config.accel_scale
+        scenario = self.config.scenario
+        speed = self._ego_speed + acceleration * scenario.step_length
+        speed = min(max(speed, 0.0), scenario.speed_limit)
+        self._simulation.set_ego_speed(speed)
+        events = self._simulation.step()
+        self._steps += 1
+        self._vehicles = vehicles = self._simulation.vehicles()
+        ego = _find_ego(vehicles)
+
+        collision = events.ego_collided
+        arrived = events.ego_arrived and not collision
+        if ego is not None:
+            self._ego_speed = ego.speed
+            observation = self._grid(vehicles, ego)
+            braking, waiting = self._disturbance(vehicles, ego)
+        else:  # arrived: SUMO removed the ego during the step
+            self._ego_speed = speed
+            observation = np.zeros(self.observation_space.shape, np.float32)
+            braking = waiting = False
+        signals = RewardSignals(
+            moving=self._ego_speed > self.reward_config.moving_speed,
+            others_braking=braking,
+            others_waiting=waiting,
+            collision=collision,
+            arrived=arrived,
+        )
+        terms = reward_terms(signals, self.reward_config)
+        reward = float(sum(terms.values()))
+        terminated = collision or arrived or ego is None
+        truncated = not terminated and self._steps >= self.config.max_episode_steps
+        self._done = terminated or truncated
+        return observation, reward, terminated, truncated, self._info(collision, arrived, terms)
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None  # "human": sumo-gui draws itself
+        from frl.envs.render import draw_intersection
+
+        vehicles = self._vehicles
+        if vehicles is None:
+            raise RuntimeError("render() needs reset() first")
+        return draw_intersection(vehicles, self.config.scenario, EGO_ID)
+
+    def close(self) -> None:
+        if self._simulation is not None:
+            self._simulation.close()
+            self._simulation = None
+        self._done = True
+
+    def _ensure_simulation(self) -> SumoSimulation:
+        if self._scenario is None:
+            self._scenario = build_scenario(self.config.scenario)
+        if self._simulation is None:
+            self._simulation = SumoSimulation(
+                self._scenario,
+                self.config.scenario,
+                backend=self.config.backend,
+                gui=self.render_mode == "human",
+            )
+        return self._simulation
+
+    def _disturbance(self, vehicles: list[VehicleState], ego: VehicleState) -> tuple[bool, bool]:
+        """Whether humans near the ego brake (brake-light bit) or wait (see RewardConfig)."""
+        radius_sq = self.reward_config.disturbance_radius**2
+        moving_speed = self.reward_config.moving_speed
+        braking = waiting = False
+        for vehicle in vehicles:
+            if vehicle is ego:
+                continue
+            dx, dy = vehicle.x - ego.x, vehicle.y - ego.y
+            if dx * dx + dy * dy <= radius_sq:
+                braking = braking or bool(vehicle.signals & BRAKE_LIGHT_BIT)
+                waiting = waiting or vehicle.speed <= moving_speed
+        return braking, waiting
+
+    def _info(
+        self, collision: bool, arrived: bool, terms: dict[str, float] | None
+    ) -> dict[str, Any]:
+        return {
+            "task": self._task,
+            "collision": collision,
+            "arrived": arrived,
+            "travel_time_steps": self._steps,
+            "ego_speed": self._ego_speed,
+            "reward_terms": terms if terms is not None else {},
+        }
+
+
+def _find_ego(vehicles: list[VehicleState]) -> VehicleState | None:
+    return next((vehicle for vehicle in vehicles if vehicle.id == EGO_ID), None)

@@ -1,0 +1,84 @@
+"""Reward terms and config validation (no SUMO)."""
+
+import dataclasses
+
+import pytest
+
+from frl.envs.config import EnvConfig, GridConfig, RewardConfig, ScenarioConfig
+from frl.envs.reward import REWARD_TERMS, RewardSignals, reward_terms
+
+
+def signals(**kwargs):
+    base = dict(
+        moving=False, others_braking=False, others_waiting=False, collision=False, arrived=False
+    )
+    return RewardSignals(**{**base, **kwargs})
+
+
+def test_paper_defaults_are_section_iv_b():
+    config = RewardConfig()
+    assert (config.alpha, config.beta, config.gamma, config.lambda_, config.mu) == (
+        -0.05, 0.04, -0.025, -10.0, 5.0,
+    )  # fmt: skip
+
+
+def test_terms_are_the_weighted_indicators():
+    config = RewardConfig()
+    terms = reward_terms(signals(moving=True, others_braking=True, arrived=True), config)
+    assert set(terms) == set(REWARD_TERMS)
+    assert terms == {
+        "time": -0.05,
+        "speed": 0.04,
+        "disturbance": -0.025,
+        "undisturbed": 0.0,
+        "collision": 0.0,
+        "arrival": 5.0,
+    }
+    both = reward_terms(signals(others_braking=True, others_waiting=True), config)
+    assert both["disturbance"] == pytest.approx(-0.05) and both["undisturbed"] == 0.0
+    calm = reward_terms(signals(), config)
+    assert calm["undisturbed"] == pytest.approx(0.05)
+
+
+def test_collision_term():
+    terms = reward_terms(signals(collision=True), RewardConfig())
+    assert terms["collision"] == -10.0
+
+
+def test_reference_reward_by_name():
+    reference = RewardConfig.named("reference")
+    step = sum(reward_terms(signals(moving=True), reference).values())
+    crash = sum(reward_terms(signals(collision=True), reference).values())
+    success = sum(reward_terms(signals(arrived=True), reference).values())
+    assert step == pytest.approx(-0.01)
+    assert crash == pytest.approx(-1.01)
+    assert success == pytest.approx(0.99)
+    assert RewardConfig.named("paper", alpha=-0.005).alpha == -0.005
+
+
+@pytest.mark.parametrize(
+    ("build", "message"),
+    [
+        (lambda: EnvConfig(task="uturn"), "unknown task 'uturn'"),
+        (lambda: ScenarioConfig(human_arrival_period_steps=-1), "human_arrival_period_steps"),
+        (lambda: ScenarioConfig(human_arrival_period_steps=0), "human_arrival_period_steps"),
+        (lambda: GridConfig(lateral_range=(10.0, 10.0)), "non-empty range"),
+        (lambda: GridConfig(longitudinal_range=(40.0, -5.0)), "non-empty range"),
+        (lambda: GridConfig(lateral_cells=0), "positive integer"),
+        (lambda: RewardConfig(name="shaped"), "reward.name"),
+        (lambda: RewardConfig.named("shaped"), "unknown reward 'shaped'"),
+        (lambda: EnvConfig(backend="carla"), "unknown backend"),
+        (lambda: EnvConfig(max_episode_steps=0), "max_episode_steps"),
+        (lambda: ScenarioConfig(human_arrival_process="bursty"), "human_arrival_process"),
+        (lambda: ScenarioConfig(step_length=float("nan")), "finite"),
+        (lambda: ScenarioConfig(ego_destination_distance=500.0), "exit arm"),
+    ],
+)
+def test_bad_config_values_raise_clear_errors(build, message):
+    with pytest.raises(ValueError, match=message):
+        build()
+
+
+def test_configs_are_frozen():
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        EnvConfig().task = "left"  # type: ignore[misc]
