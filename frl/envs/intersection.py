@@ -188,13 +188,11 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         radius_sq = self.reward_config.disturbance_radius**2
         moving_speed = self.reward_config.moving_speed
         braking = waiting = False
-        for vehicle in vehicles:
-            if vehicle is ego:
-                continue
-            dx, dy = vehicle.x - ego.x, vehicle.y - ego.y
-            if dx * dx + dy * dy <= radius_sq:
-                braking = braking or bool(vehicle.signals & BRAKE_LIGHT_BIT)
-                waiting = waiting or vehicle.speed <= moving_speed
+        for vehicle_id, x, y, _, speed, signals in vehicles:
+            dx, dy = x - ego.x, y - ego.y
+            if vehicle_id != EGO_ID and dx * dx + dy * dy <= radius_sq:
+                braking = braking or bool(signals & BRAKE_LIGHT_BIT)
+                waiting = waiting or speed <= moving_speed
         return braking, waiting
 
     def _info(

@@ -33,6 +33,7 @@ _CMD_GET_VEHICLE_VARIABLE = 0xA4
 _SUBSCRIBED = (_VAR_POSITION, _VAR_ANGLE, _VAR_SPEED, _VAR_SIGNALS)
 
 _libsumo_owner: SumoSimulation | None = None
+_new_tuple = tuple.__new__
 _traci_labels = itertools.count()
 
 
@@ -156,13 +157,17 @@ class SumoSimulation:
     def vehicles(self) -> list[VehicleState]:
         """All vehicles near the junction, read from one context subscription."""
         results = self._api.junction.getContextSubscriptionResults(JUNCTION_ID) or {}
+        # tuple.__new__ skips the NamedTuple constructor's Python-level argument handling.
         return [
-            VehicleState(
-                vehicle_id,
-                *values[_VAR_POSITION],
-                values[_VAR_ANGLE],
-                values[_VAR_SPEED],
-                values[_VAR_SIGNALS],
+            _new_tuple(
+                VehicleState,
+                (
+                    vehicle_id,
+                    *values[_VAR_POSITION],
+                    values[_VAR_ANGLE],
+                    values[_VAR_SPEED],
+                    values[_VAR_SIGNALS],
+                ),
             )
             for vehicle_id, values in results.items()
         ]
