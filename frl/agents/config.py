@@ -1,0 +1,139 @@
+"""Hyperparameters of the DDPG agent, defaulting to the paper's Table II."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise ValueError(message)
+
+
+@dataclass(frozen=True)
+class DDPGConfig:
+    """DDPG hyperparameters. Defaults reproduce the paper's Table II where it gives a value.
+
+    Noise parameters are in normalised action units: the actor's tanh output lives in
+    [-1, 1] and is scaled to the action bounds only after noise is added, so
+    ``noise_sigma=0.3`` is 30 % of the half-range of every action dimension.
+    """
+
+    hidden_sizes: tuple[int, ...] = (512, 512, 256, 64)
+    """Widths of the hidden layers of both actor and critic (Table II)."""
+    buffer_size: int = 100_000
+    """Replay buffer capacity in transitions (Table II)."""
+    learning_starts: int = 1_000
+    """Environment steps of uniform random actions before the first gradient step (Table II)."""
+    batch_size: int = 256
+    """Transitions per gradient step (Table II)."""
+    tau: float = 0.001
+    """Polyak coefficient of the soft target update, in (0, 1] (Table II)."""
+    gamma: float = 0.99
+    """Discount factor, in [0, 1] (Table II)."""
+    actor_lr: float = 1e-4
+    """Adam learning rate of the actor (Table II)."""
+    critic_lr: float = 1e-4
+    """Adam learning rate of the critic (Table II)."""
+    train_freq: int = 1
+    """Run ``gradient_steps`` updates every ``train_freq`` environment steps."""
+    gradient_steps: int = 1
+    """Gradient steps per update call that is due (one per env step, as in Table II's SB3)."""
+    noise: str = "ou"
+    """Exploration noise: ``"ou"`` (Ornstein-Uhlenbeck, Table II) or ``"gaussian"``."""
+    noise_sigma: float = 0.3
+    """Noise scale in normalised action units (keras-rl lineage of the paper: 0.3)."""
+    noise_theta: float = 0.15
+    """OU mean-reversion rate (keras-rl lineage and SB3 default: 0.15)."""
+    noise_dt: float = 1e-2
+    """OU time step (keras-rl and SB3 default: 1e-2)."""
+    random_warmup: bool = True
+    """Act uniformly at random before ``learning_starts`` when exploring (SB3 and CleanRL do)."""
+    sparse_input: bool | str = "auto"
+    """First layers gather only non-zero inputs: True, False, or ``"auto"`` (large obs only)."""
+    sparse_min_features: int = 256
+    """``"auto"`` picks the sparse path (network and buffer) for obs with this many features."""
+    sparse_capacity: int = 64
+    """Initial non-zeros stored per observation in the compact buffer; grows, never truncates."""
+
+    def __post_init__(self) -> None:
+        hidden = tuple(self.hidden_sizes)
+        object.__setattr__(self, "hidden_sizes", hidden)
+        _require(len(hidden) > 0, "hidden_sizes must name at least one hidden layer")
+        _require(
+            all(isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in hidden),
+            f"hidden_sizes must be positive integers, got {hidden}",
+        )
+        for name in (
+            "buffer_size",
+            "batch_size",
+            "train_freq",
+            "gradient_steps",
+            "sparse_min_features",
+            "sparse_capacity",
+        ):
+            value = getattr(self, name)
+            _require(
+                isinstance(value, int) and not isinstance(value, bool) and value > 0,
+                f"{name} must be a positive integer, got {value!r}",
+            )
+        _require(
+            isinstance(self.learning_starts, int) and self.learning_starts >= 0,
+            f"learning_starts must be a non-negative integer, got {self.learning_starts!r}",
+        )
+        _require(
+            self.batch_size <= self.buffer_size,
+            f"batch_size ({self.batch_size}) must not exceed buffer_size ({self.buffer_size})",
+        )
+        for name in ("tau", "gamma", "actor_lr", "critic_lr", "noise_sigma", "noise_theta"):
+            value = getattr(self, name)
+            _require(
+                isinstance(value, (int, float)) and math.isfinite(value),
+                f"{name} must be a finite number, got {value!r}",
+            )
+        _require(0.0 < self.tau <= 1.0, f"tau must lie in (0, 1], got {self.tau}")
+        _require(0.0 <= self.gamma <= 1.0, f"gamma must lie in [0, 1], got {self.gamma}")
+        _require(self.actor_lr > 0, f"actor_lr must be positive, got {self.actor_lr}")
+        _require(self.critic_lr > 0, f"critic_lr must be positive, got {self.critic_lr}")
+        _require(
+            self.noise in NOISE_KINDS, f"noise must be one of {NOISE_KINDS}, got {self.noise!r}"
+        )
+        _require(self.noise_sigma >= 0, f"noise_sigma must be >= 0, got {self.noise_sigma}")
+        _require(self.noise_theta >= 0, f"noise_theta must be >= 0, got {self.noise_theta}")
+        _require(
+            isinstance(self.noise_dt, (int, float)) and 0 < self.noise_dt < math.inf,
+            f"noise_dt must be positive and finite, got {self.noise_dt!r}",
+        )
+        # theta*dt >= 2 makes the discretised OU process oscillate with growing amplitude.
+        _require(
+            self.noise_theta * self.noise_dt < 2,
+            "noise_theta * noise_dt must be < 2 for a stable OU process",
+        )
+        _require(
+            self.sparse_input in (True, False, "auto"),
+            f"sparse_input must be True, False or 'auto', got {self.sparse_input!r}",
+        )
+
+    def use_sparse(self, num_features: int) -> bool:
+        """Whether observations of ``num_features`` features take the sparse path."""
+        if self.sparse_input == "auto":
+            return num_features >= self.sparse_min_features
+        return bool(self.sparse_input)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-type dict (lists for tuples), safe for ``torch.load(weights_only=True)``."""
+        data = asdict(self)
+        data["hidden_sizes"] = list(self.hidden_sizes)
+        return data
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> DDPGConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise ``TypeError``."""
+        data = dict(data)
+        if "hidden_sizes" in data:
+            data["hidden_sizes"] = tuple(data["hidden_sizes"])
+        return cls(**data)

@@ -1,0 +1,409 @@
+"""DDPG (Lillicrap et al. 2016) for gymnasium Box spaces, with a federated-state interface."""
+
+from __future__ import annotations
+
+import copy
+import os
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from gymnasium import spaces
+from torch import Tensor, nn
+
+from frl.agents.checkpoint import CheckpointError, read_checkpoint, write_checkpoint
+from frl.agents.config import DDPGConfig
+from frl.agents.functional import hard_update, soft_update, td_target
+from frl.agents.networks import Actor, Critic, init_mlp_
+from frl.agents.noise import generator_state, make_noise, set_generator_state
+from frl.agents.replay_buffer import Batch, ReplayBuffer
+from frl.agents.sparse_linear import SparseRows
+
+NETWORK_NAMES: tuple[str, ...] = ("actor", "critic", "actor_target", "critic_target")
+"""Prefixes of :meth:`DDPG.federated_state` keys, e.g. ``critic_target.layers.0.weight``."""
+
+
+def is_target_key(name: str) -> bool:
+    """Whether a federated-state key belongs to a target network."""
+    return name.startswith(("actor_target.", "critic_target."))
+
+
+def _make_adam(params: list[nn.Parameter], lr: float, device: torch.device) -> torch.optim.Adam:
+    # The fused kernel updates all parameters in one pass; on CPU it exists since torch 2.4.
+    try:
+        return torch.optim.Adam(params, lr=lr, fused=True)
+    except (RuntimeError, TypeError, ValueError):
+        return torch.optim.Adam(params, lr=lr, foreach=device.type != "cpu" or None)
+
+
+class DDPG:
+    """Deep Deterministic Policy Gradient agent for a Box observation and a Box action space.
+
+    Args:
+        observation_space: any Box; observations are flattened. Large ones (see
+            ``DDPGConfig.sparse_input``) take the sparse first-layer path and compact replay.
+        action_space: a Box with finite bounds. The actor works in [-1, 1] and ``act``
+            rescales to the bounds; noise is added in those normalised units.
+        config: hyperparameters; ``None`` means the paper's Table II defaults.
+        seed: seeds every random stream: network init, noise, replay sampling and warm-up
+            actions each get a child of ``np.random.SeedSequence(seed)``.
+        device: where networks and training batches live; nothing requires a GPU.
+
+    Call :meth:`episode_start` at each reset, :meth:`act` to choose an action,
+    :meth:`observe` with the transition and :meth:`update` once per environment step.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Box,
+        action_space: spaces.Box,
+        config: DDPGConfig | None = None,
+        seed: int = 0,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        if not isinstance(observation_space, spaces.Box):
+            raise TypeError(f"observation_space must be a gymnasium Box, got {observation_space}")
+        if not isinstance(action_space, spaces.Box):
+            raise TypeError(f"action_space must be a gymnasium Box, got {action_space}")
+        if not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
+            raise ValueError("action_space bounds must be finite")
+        self.config = config if config is not None else DDPGConfig()
+        cfg = self.config
+        self.seed = int(seed)
+        self.device = torch.device(device)
+        self.obs_shape: tuple[int, ...] = tuple(observation_space.shape)
+        self.obs_dim = int(np.prod(self.obs_shape, dtype=np.int64))
+        self.action_shape: tuple[int, ...] = tuple(action_space.shape)
+        self.action_dim = int(np.prod(self.action_shape, dtype=np.int64))
+        self.action_low = action_space.low.astype(np.float64).reshape(-1)
+        self.action_high = action_space.high.astype(np.float64).reshape(-1)
+        self.sparse = cfg.use_sparse(self.obs_dim)
+        """Networks see :class:`SparseRows` batches (same function, fewer multiply-adds)."""
+
+        init_seq, noise_seq, buffer_seq, explore_seq = np.random.SeedSequence(self.seed).spawn(4)
+        init_gen = torch.Generator().manual_seed(int(init_seq.generate_state(1, np.uint64)[0]))
+        # Built on the meta device so that nn.Linear's own init never draws from the
+        # global torch RNG; then materialised and initialised from init_gen only.
+        with torch.device("meta"):
+            actor = Actor(self.obs_dim, self.action_dim, cfg.hidden_sizes)
+            critic = Critic(self.obs_dim, self.action_dim, cfg.hidden_sizes)
+        self.actor = actor.to_empty(device="cpu")
+        self.critic = critic.to_empty(device="cpu")
+        init_mlp_(self.actor.layers, init_gen)
+        init_mlp_(self.critic.layers, init_gen)
+        self.actor.to(self.device)
+        self.critic.to(self.device)
+        self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self._online_params = [*self.actor.parameters(), *self.critic.parameters()]
+        self._target_params = [*self.actor_target.parameters(), *self.critic_target.parameters()]
+
+        self.actor_optimizer = _make_adam(list(self.actor.parameters()), cfg.actor_lr, self.device)
+        self.critic_optimizer = _make_adam(
+            list(self.critic.parameters()), cfg.critic_lr, self.device
+        )
+        self.noise = make_noise(
+            cfg.noise,
+            (self.action_dim,),
+            np.random.default_rng(noise_seq),
+            sigma=cfg.noise_sigma,
+            theta=cfg.noise_theta,
+            dt=cfg.noise_dt,
+        )
+        # Compact storage whenever the observation is large, even for a dense network.
+        compact = cfg.sparse_input is True or self.obs_dim >= cfg.sparse_min_features
+        self.buffer = ReplayBuffer(
+            cfg.buffer_size,
+            self.obs_shape,
+            self.action_dim,
+            np.random.default_rng(buffer_seq),
+            sparse=compact,
+            sparse_width=cfg.sparse_capacity,
+        )
+        self._explore_rng = np.random.default_rng(explore_seq)
+        self.num_env_steps = 0
+        """Transitions passed to :meth:`observe`."""
+        self.num_updates = 0
+        """Gradient steps taken."""
+
+    # ------------------------------------------------------------------ acting
+    def _normalise(self, action: np.ndarray) -> np.ndarray:
+        scaled = 2.0 * (action - self.action_low) / (self.action_high - self.action_low) - 1.0
+        return np.clip(scaled, -1.0, 1.0)
+
+    def _denormalise(self, action: np.ndarray) -> np.ndarray:
+        env_action = self.action_low + (action + 1.0) * 0.5 * (self.action_high - self.action_low)
+        low, high = self.action_low.astype(np.float32), self.action_high.astype(np.float32)
+        return np.clip(env_action.astype(np.float32), low, high).reshape(self.action_shape)
+
+    def _flat_obs_tensor(self, obs: Any) -> Tensor | SparseRows:
+        flat = np.asarray(obs, dtype=np.float32).reshape(1, -1)
+        if flat.shape[1] != self.obs_dim:
+            raise ValueError(f"expected an observation of shape {self.obs_shape}")
+        x = torch.from_numpy(flat)
+        if self.sparse:
+            return SparseRows.from_dense(x).to(self.device)
+        return x.to(self.device)
+
+    def act(self, obs: Any, explore: bool = True) -> np.ndarray:
+        """Action for one observation, float32 and within the action bounds.
+
+        With ``explore`` the action is the policy's plus noise (both in normalised units,
+        clipped to [-1, 1]); before ``learning_starts`` transitions have been observed it is
+        uniform over the bounds instead (``DDPGConfig.random_warmup``), as in SB3 and
+        CleanRL, so the first updates see diverse actions. Without ``explore`` it is the
+        deterministic policy.
+        """
+        cfg = self.config
+        if explore and cfg.random_warmup and self.num_env_steps < cfg.learning_starts:
+            action = self._explore_rng.uniform(-1.0, 1.0, size=self.action_dim)
+        else:
+            with torch.no_grad():
+                action = self.actor(self._flat_obs_tensor(obs))[0].double().cpu().numpy()
+            if explore:
+                action = np.clip(action + self.noise(), -1.0, 1.0)
+        return self._denormalise(action)
+
+    def reset_noise(self) -> None:
+        """Restart the exploration noise (the OU process returns to its mean)."""
+        self.noise.reset()
+
+    def episode_start(self) -> None:
+        """Call after every ``env.reset()``."""
+        self.reset_noise()
+
+    def observe(
+        self, obs: Any, action: Any, reward: float, next_obs: Any, terminated: bool
+    ) -> None:
+        """Store a transition. Pass gymnasium's ``terminated``, not ``terminated or truncated``:
+        a time-limit cut-off is not a terminal state and must still bootstrap."""
+        normalised = self._normalise(np.asarray(action, dtype=np.float64).reshape(-1))
+        self.buffer.add(obs, normalised, float(reward), next_obs, bool(terminated))
+        self.num_env_steps += 1
+
+    # ---------------------------------------------------------------- learning
+    def update(self) -> dict[str, float]:
+        """Take ``gradient_steps`` gradient steps if one is due; return the last losses.
+
+        Due when at least ``learning_starts`` transitions were observed, the buffer holds a
+        batch, and ``num_env_steps`` is a multiple of ``train_freq``. Otherwise ``{}``.
+        """
+        cfg = self.config
+        if (
+            self.num_env_steps < cfg.learning_starts
+            or len(self.buffer) < cfg.batch_size
+            or self.num_env_steps % cfg.train_freq != 0
+        ):
+            return {}
+        for _ in range(cfg.gradient_steps):
+            batch = self.buffer.sample(cfg.batch_size, sparse=self.sparse, device=self.device)
+            stats = self._train_step(batch)
+            self.num_updates += 1
+        return {name: value.item() for name, value in stats.items()}
+
+    def _train_step(self, batch: Batch) -> dict[str, Tensor]:
+        cfg = self.config
+        with torch.no_grad():
+            next_q = self.critic_target(batch.next_obs, self.actor_target(batch.next_obs))
+            target_q = td_target(batch.rewards, batch.terminated, next_q, cfg.gamma)
+
+        q = self.critic(batch.obs, batch.actions)
+        critic_loss = F.mse_loss(q, target_q)
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        critic_loss.backward()
+        self.critic_optimizer.step()
+
+        # Freeze the critic so backward computes only what the actor needs: no critic
+        # weight gradients (and none for its sparse first layer), just dQ/da.
+        self.critic.requires_grad_(False)
+        try:
+            actor_loss = -self.critic(batch.obs, self.actor(batch.obs)).mean()
+            self.actor_optimizer.zero_grad(set_to_none=True)
+            actor_loss.backward()
+        finally:
+            self.critic.requires_grad_(True)
+        self.actor_optimizer.step()
+
+        soft_update(self._target_params, self._online_params, cfg.tau)
+        return {
+            "critic_loss": critic_loss.detach(),
+            "actor_loss": actor_loss.detach(),
+            "q_mean": q.detach().mean(),
+        }
+
+    # ---------------------------------------------------------- federated state
+    def _networks(self) -> dict[str, nn.Module]:
+        return {
+            "actor": self.actor,
+            "critic": self.critic,
+            "actor_target": self.actor_target,
+            "critic_target": self.critic_target,
+        }
+
+    @property
+    def federated_keys(self) -> tuple[str, ...]:
+        """Keys of :meth:`federated_state`, in a stable order."""
+        return tuple(
+            f"{prefix}.{name}"
+            for prefix, net in self._networks().items()
+            for name in net.state_dict()
+        )
+
+    def federated_state(self) -> dict[str, Tensor]:
+        """Detached contiguous CPU copies of all network parameters (online and target).
+
+        Keys look like ``actor.layers.0.weight`` or ``critic_target.layers.4.bias``; see
+        :func:`is_target_key`. Optimizer moments, the replay buffer and the noise stay
+        private to the agent.
+        """
+        return {
+            f"{prefix}.{name}": tensor.detach().to(
+                "cpu", memory_format=torch.contiguous_format, copy=True
+            )
+            for prefix, net in self._networks().items()
+            for name, tensor in net.state_dict().items()
+        }
+
+    def load_federated_state(self, state: dict[str, Tensor]) -> None:
+        """Copy a :meth:`federated_state`-shaped dict into the networks.
+
+        Strict: a missing or unexpected key, or a shape mismatch, raises ``ValueError``
+        naming the key, and nothing is modified.
+        """
+        expected = {
+            f"{prefix}.{name}": tensor
+            for prefix, net in self._networks().items()
+            for name, tensor in net.state_dict().items()
+        }
+        missing = [key for key in expected if key not in state]
+        if missing:
+            raise ValueError(f"federated state lacks key {missing[0]!r} ({len(missing)} missing)")
+        unexpected = [key for key in state if key not in expected]
+        if unexpected:
+            raise ValueError(f"federated state has unexpected key {unexpected[0]!r}")
+        for key, tensor in expected.items():
+            value = state[key]
+            if not isinstance(value, Tensor) or value.shape != tensor.shape:
+                shape = tuple(value.shape) if isinstance(value, Tensor) else type(value).__name__
+                raise ValueError(f"{key!r}: expected shape {tuple(tensor.shape)}, got {shape}")
+        with torch.no_grad():
+            for key, tensor in expected.items():
+                tensor.copy_(state[key])
+
+    def sync_targets(self) -> None:
+        """Hard-copy the online networks into the targets (e.g. after FedAvg of onlines)."""
+        hard_update(self._target_params, self._online_params)
+
+    # -------------------------------------------------------------- checkpoints
+    def _spaces_record(self) -> dict[str, Any]:
+        return {
+            "obs_shape": list(self.obs_shape),
+            "action_shape": list(self.action_shape),
+            "action_low": torch.from_numpy(self.action_low.copy()),
+            "action_high": torch.from_numpy(self.action_high.copy()),
+        }
+
+    def save(self, path: str | os.PathLike[str], include_buffer: bool = False) -> None:
+        """Write networks, optimizers, noise, counters and generators (and the buffer).
+
+        The file is written atomically and loads with ``torch.load(weights_only=True)``.
+        """
+        write_checkpoint(
+            {
+                "config": self.config.to_dict(),
+                "seed": self.seed,
+                "spaces": self._spaces_record(),
+                "networks": {
+                    name: {k: v.detach().cpu() for k, v in net.state_dict().items()}
+                    for name, net in self._networks().items()
+                },
+                "optimizers": {
+                    "actor": self.actor_optimizer.state_dict(),
+                    "critic": self.critic_optimizer.state_dict(),
+                },
+                "noise": self.noise.state_dict(),
+                "rngs": {
+                    "explore": generator_state(self._explore_rng),
+                    "buffer": generator_state(self.buffer.rng),
+                },
+                "counters": {"num_env_steps": self.num_env_steps, "num_updates": self.num_updates},
+                "buffer": self.buffer.state_dict() if include_buffer else None,
+            },
+            path,
+        )
+
+    def load(self, path: str | os.PathLike[str]) -> None:
+        """Restore a :meth:`save` file into this agent (same config and spaces).
+
+        Without a saved buffer the agent resumes with an empty buffer.
+
+        Raises:
+            CheckpointError: unreadable or foreign file, or one saved by an agent with a
+                different config, spaces or network shapes (checked before anything is
+                modified).
+        """
+        data = read_checkpoint(path)
+        try:
+            self._check_compatible(data)
+            for name, net in self._networks().items():
+                _check_state_dict(data["networks"][name], net.state_dict(), name)
+        except (KeyError, TypeError, AttributeError) as error:
+            raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
+        try:
+            for name, net in self._networks().items():
+                net.load_state_dict(data["networks"][name])
+            self.actor_optimizer.load_state_dict(data["optimizers"]["actor"])
+            self.critic_optimizer.load_state_dict(data["optimizers"]["critic"])
+            self.noise.load_state_dict(data["noise"])
+            if data["buffer"] is not None:
+                self.buffer.load_state_dict(data["buffer"])
+            else:
+                self.buffer.pos = self.buffer.size = 0
+            set_generator_state(self._explore_rng, data["rngs"]["explore"])
+            set_generator_state(self.buffer.rng, data["rngs"]["buffer"])
+            self.num_env_steps = int(data["counters"]["num_env_steps"])
+            self.num_updates = int(data["counters"]["num_updates"])
+        except (KeyError, TypeError, AttributeError, ValueError, RuntimeError) as error:
+            raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
+
+    def _check_compatible(self, data: dict[str, Any]) -> None:
+        saved = data["config"]
+        mine = self.config.to_dict()
+        differing = sorted(k for k in set(saved) | set(mine) if saved.get(k) != mine.get(k))
+        if differing:
+            raise CheckpointError(f"checkpoint config differs from this agent's in {differing}")
+        spaces_saved, spaces_mine = data["spaces"], self._spaces_record()
+        for key in ("obs_shape", "action_shape"):
+            if list(spaces_saved[key]) != spaces_mine[key]:
+                raise CheckpointError(f"checkpoint {key} {spaces_saved[key]} != {spaces_mine[key]}")
+        for key in ("action_low", "action_high"):
+            if not torch.equal(spaces_saved[key], spaces_mine[key]):
+                raise CheckpointError(f"checkpoint {key} differs from this agent's action space")
+
+    @classmethod
+    def from_checkpoint(
+        cls,
+        path: str | os.PathLike[str],
+        observation_space: spaces.Box,
+        action_space: spaces.Box,
+        device: str | torch.device = "cpu",
+    ) -> DDPG:
+        """A new agent built with the checkpoint's config and seed, then :meth:`load`-ed."""
+        data = read_checkpoint(path)
+        try:
+            config = DDPGConfig.from_dict(data["config"])
+            seed = int(data["seed"])
+        except (KeyError, TypeError, ValueError) as error:
+            raise CheckpointError(f"{path}: malformed checkpoint config ({error!r})") from error
+        agent = cls(observation_space, action_space, config, seed=seed, device=device)
+        agent.load(path)
+        return agent
+
+
+def _check_state_dict(saved: Any, current: dict[str, Tensor], prefix: str) -> None:
+    if not isinstance(saved, dict) or set(saved) != set(current):
+        raise CheckpointError(f"checkpoint {prefix} parameters do not match this agent's")
+    for key, tensor in current.items():
+        if not isinstance(saved[key], Tensor) or saved[key].shape != tensor.shape:
+            raise CheckpointError(f"checkpoint {prefix}.{key} has the wrong shape")

@@ -1,0 +1,37 @@
+"""Pure tensor maths of DDPG: TD target and target-network updates."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor
+
+
+def td_target(rewards: Tensor, terminated: Tensor, next_q: Tensor, gamma: float) -> Tensor:
+    """One-step target ``r + gamma * (1 - terminated) * Q'(s', mu'(s'))``.
+
+    Only true terminations cut the bootstrap; a time-limit truncation must arrive here
+    with ``terminated = 0``.
+    """
+    return rewards + gamma * (1.0 - terminated) * next_q
+
+
+@torch.no_grad()
+def soft_update(targets: Sequence[Tensor], sources: Sequence[Tensor], tau: float) -> None:
+    """Polyak averaging in place: ``target <- (1 - tau) * target + tau * source``.
+
+    One fused ``_foreach_lerp_`` over all tensors (``lerp(t, s, tau) = t + tau * (s - t)``)
+    instead of a Python loop of small kernels.
+    """
+    if len(targets) != len(sources):
+        raise ValueError(f"{len(targets)} targets but {len(sources)} sources")
+    torch._foreach_lerp_(list(targets), list(sources), tau)
+
+
+@torch.no_grad()
+def hard_update(targets: Sequence[Tensor], sources: Sequence[Tensor]) -> None:
+    """Copy ``sources`` into ``targets`` in place."""
+    if len(targets) != len(sources):
+        raise ValueError(f"{len(targets)} targets but {len(sources)} sources")
+    torch._foreach_copy_(list(targets), list(sources))

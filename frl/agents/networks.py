@@ -1,0 +1,79 @@
+"""Actor and critic MLPs of DDPG, with a sparse-capable first layer."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor, nn
+
+from frl.agents.sparse_linear import InputLinear, SparseRows
+
+FINAL_LAYER_INIT = 3e-3
+"""Final layers start in U(-3e-3, 3e-3) so initial actions and Q-values are near zero
+(Lillicrap et al. 2016, DDPG, Section 7)."""
+
+
+def _hidden_stack(first: InputLinear, hidden_sizes: Sequence[int], out_features: int) -> list:
+    layers: list[nn.Module] = [first]
+    for fan_in, fan_out in itertools.pairwise(hidden_sizes):
+        layers.append(nn.Linear(fan_in, fan_out))
+    layers.append(nn.Linear(hidden_sizes[-1], out_features))
+    return layers
+
+
+def init_mlp_(layers: Sequence[nn.Module], generator: torch.Generator) -> None:
+    """Initialise in place from ``generator`` only (never the global torch RNG).
+
+    Hidden layers: ``nn.Linear``'s default U(-1/sqrt(fan_in), 1/sqrt(fan_in)) for weight
+    and bias; final layer: U(-3e-3, 3e-3).
+    """
+    with torch.no_grad():
+        for layer in layers[:-1]:
+            if isinstance(layer, InputLinear):
+                layer.reset_parameters(generator)
+            else:
+                bound = layer.in_features**-0.5
+                layer.weight.uniform_(-bound, bound, generator=generator)
+                layer.bias.uniform_(-bound, bound, generator=generator)
+        layers[-1].weight.uniform_(-FINAL_LAYER_INIT, FINAL_LAYER_INIT, generator=generator)
+        layers[-1].bias.uniform_(-FINAL_LAYER_INIT, FINAL_LAYER_INIT, generator=generator)
+
+
+class Actor(nn.Module):
+    """Deterministic policy: flat observation -> action in [-1, 1] (tanh).
+
+    The agent maps [-1, 1] to the action bounds; keeping the network's range fixed keeps
+    its state dict independent of the action space's bounds.
+    """
+
+    def __init__(self, obs_dim: int, action_dim: int, hidden_sizes: Sequence[int]) -> None:
+        super().__init__()
+        first = InputLinear(obs_dim, hidden_sizes[0])
+        self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, action_dim))
+
+    def forward(self, obs: Tensor | SparseRows) -> Tensor:
+        x = obs
+        for layer in self.layers[:-1]:
+            x = torch.relu_(layer(x))  # in place: addmm's backward needs only its inputs
+        return torch.tanh(self.layers[-1](x))
+
+
+class Critic(nn.Module):
+    """Q(obs, action) with a linear output: returns reach -10 and below, so no tanh.
+
+    The action joins the observation at the first layer (``layers.0.extra_weight``), which
+    computes ``Linear(obs_dim + action_dim, h0)`` on ``cat([obs, action])``.
+    """
+
+    def __init__(self, obs_dim: int, action_dim: int, hidden_sizes: Sequence[int]) -> None:
+        super().__init__()
+        first = InputLinear(obs_dim, hidden_sizes[0], extra_features=action_dim)
+        self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, 1))
+
+    def forward(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
+        x = torch.relu_(self.layers[0](obs, action))
+        for layer in self.layers[1:-1]:
+            x = torch.relu_(layer(x))  # in place: addmm's backward needs only its inputs
+        return self.layers[-1](x).squeeze(-1)

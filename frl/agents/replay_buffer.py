@@ -1,0 +1,250 @@
+"""Uniform replay buffer with exact compact storage for mostly-zero observations.
+
+Dense storage keeps float32 observations as they are (fine for Pendulum's 3 numbers). Sparse
+storage keeps, per observation, its non-zero float32 values and their flat positions (int16
+when the observation has at most 32767 features) in a fixed-width row of ``capacity_nnz``
+slots. Storage is exact: values are kept as float32, the dtype the networks consume. When an
+observation has more non-zeros than the row width, every row is widened (copied into larger
+arrays) rather than truncated, so memory is ``2 * buffer_size * capacity_nnz * 6`` bytes
+plus the scalars: 77 MB for the paper's 100,000 transitions at the default width 64 (up to
+21 vehicles x 3 channels), against 1.1 GB for dense float32 observations.
+
+``terminated`` is stored as given. Pass ``terminated`` (not ``terminated or truncated``)
+so that time-limit cut-offs still bootstrap from the next observation.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from frl.agents.noise import generator_state, set_generator_state
+from frl.agents.sparse_linear import SparseRows
+
+
+class Batch(NamedTuple):
+    """Sampled transitions as tensors; observations flat, dense or :class:`SparseRows`."""
+
+    obs: Tensor | SparseRows
+    actions: Tensor
+    rewards: Tensor
+    next_obs: Tensor | SparseRows
+    terminated: Tensor
+
+
+class _SparseStore:
+    """Fixed-width compressed rows: ``values[i, :count[i]]`` at ``indices[i, :count[i]]``."""
+
+    def __init__(self, capacity: int, num_features: int, width: int) -> None:
+        self.num_features = num_features
+        self.index_dtype = np.int16 if num_features <= np.iinfo(np.int16).max else np.int32
+        self.counts = np.zeros(capacity, dtype=np.int32)
+        self.indices = np.zeros((capacity, width), dtype=self.index_dtype)
+        self.values = np.zeros((capacity, width), dtype=np.float32)
+
+    @property
+    def width(self) -> int:
+        return self.indices.shape[1]
+
+    @property
+    def nbytes(self) -> int:
+        return self.counts.nbytes + self.indices.nbytes + self.values.nbytes
+
+    def _widen(self, needed: int) -> None:
+        width = max(needed, 2 * self.width)
+        pad = ((0, 0), (0, width - self.width))
+        self.indices = np.pad(self.indices, pad)
+        self.values = np.pad(self.values, pad)
+
+    def put(self, slot: int, flat: np.ndarray) -> None:
+        nz = np.flatnonzero(flat)
+        if nz.size > self.width:
+            self._widen(nz.size)
+        n = nz.size
+        self.counts[slot] = n
+        self.indices[slot, :n] = nz
+        self.values[slot, :n] = flat[nz]
+        # Stale entries past ``n`` are masked out by ``counts`` when sampling.
+
+    def get(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        counts = self.counts[slots]
+        mask = np.arange(self.width) < counts[:, None]
+        indices = self.indices[slots][mask].astype(np.int64)
+        values = self.values[slots][mask]
+        offsets = np.cumsum(counts, dtype=np.int64) - counts
+        return indices, values, offsets
+
+    def dense(self, slots: np.ndarray) -> np.ndarray:
+        indices, values, _ = self.get(slots)
+        rows = np.repeat(np.arange(len(slots)), self.counts[slots])
+        out = np.zeros((len(slots), self.num_features), dtype=np.float32)
+        out[rows, indices] = values
+        return out
+
+
+class ReplayBuffer:
+    """Ring buffer of ``(obs, action, reward, next_obs, terminated)`` transitions.
+
+    Args:
+        capacity: transitions kept; the oldest is overwritten first.
+        obs_shape: observation shape; observations are stored flattened.
+        action_dim: flat action size; actions are stored as float32.
+        rng: the generator that draws sample indices (never the global RNG).
+        sparse: store observations compactly (exact); see the module docstring.
+        sparse_width: initial non-zeros per stored observation (grows on demand).
+    """
+
+    def __init__(
+        self,
+        capacity: int,
+        obs_shape: tuple[int, ...],
+        action_dim: int,
+        rng: np.random.Generator,
+        sparse: bool = False,
+        sparse_width: int = 64,
+    ) -> None:
+        if capacity <= 0:
+            raise ValueError(f"capacity must be positive, got {capacity}")
+        self.capacity = capacity
+        self.obs_shape = tuple(obs_shape)
+        self.num_features = int(np.prod(self.obs_shape, dtype=np.int64))
+        self.action_dim = action_dim
+        self.rng = rng
+        self.sparse = sparse
+        if sparse:
+            self._obs: Any = _SparseStore(capacity, self.num_features, sparse_width)
+            self._next_obs: Any = _SparseStore(capacity, self.num_features, sparse_width)
+        else:
+            self._obs = np.zeros((capacity, self.num_features), dtype=np.float32)
+            self._next_obs = np.zeros((capacity, self.num_features), dtype=np.float32)
+        self.actions = np.zeros((capacity, action_dim), dtype=np.float32)
+        self.rewards = np.zeros(capacity, dtype=np.float32)
+        self.terminated = np.zeros(capacity, dtype=np.float32)
+        self.pos = 0
+        self.size = 0
+
+    def __len__(self) -> int:
+        return self.size
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the storage arrays (allocated for the full capacity)."""
+        obs_bytes = self._obs.nbytes + self._next_obs.nbytes
+        return obs_bytes + self.actions.nbytes + self.rewards.nbytes + self.terminated.nbytes
+
+    def add(
+        self,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: float,
+        next_obs: np.ndarray,
+        terminated: bool,
+    ) -> None:
+        """Store one transition; ``terminated`` must exclude time-limit truncation."""
+        flat_obs = np.asarray(obs, dtype=np.float32).reshape(-1)
+        flat_next = np.asarray(next_obs, dtype=np.float32).reshape(-1)
+        if flat_obs.size != self.num_features or flat_next.size != self.num_features:
+            raise ValueError(
+                f"observations must have {self.num_features} values, "
+                f"got {flat_obs.size} and {flat_next.size}"
+            )
+        slot = self.pos
+        if self.sparse:
+            self._obs.put(slot, flat_obs)
+            self._next_obs.put(slot, flat_next)
+        else:
+            self._obs[slot] = flat_obs
+            self._next_obs[slot] = flat_next
+        self.actions[slot] = np.asarray(action, dtype=np.float32).reshape(-1)
+        self.rewards[slot] = reward
+        self.terminated[slot] = float(terminated)
+        self.pos = (slot + 1) % self.capacity
+        self.size = min(self.size + 1, self.capacity)
+
+    def _observations(self, store: Any, slots: np.ndarray, as_sparse: bool) -> Tensor | SparseRows:
+        if not self.sparse:
+            dense = torch.from_numpy(store[slots])
+            return SparseRows.from_dense(dense) if as_sparse else dense
+        if as_sparse:
+            indices, values, offsets = store.get(slots)
+            return SparseRows(
+                torch.from_numpy(indices),
+                torch.from_numpy(values),
+                torch.from_numpy(offsets),
+                self.num_features,
+            )
+        return torch.from_numpy(store.dense(slots))
+
+    def sample_slots(self, batch_size: int) -> np.ndarray:
+        """Uniform slot indices (with replacement, as SB3 and CleanRL sample)."""
+        if self.size == 0:
+            raise ValueError("cannot sample from an empty replay buffer")
+        return self.rng.integers(0, self.size, size=batch_size)
+
+    def sample(self, batch_size: int, sparse: bool = False, device: Any = "cpu") -> Batch:
+        """Draw ``batch_size`` transitions; observations as :class:`SparseRows` if ``sparse``."""
+        return self.gather(self.sample_slots(batch_size), sparse=sparse, device=device)
+
+    def gather(self, slots: np.ndarray, sparse: bool = False, device: Any = "cpu") -> Batch:
+        """The transitions at ``slots`` as a :class:`Batch`."""
+        obs = self._observations(self._obs, slots, sparse)
+        next_obs = self._observations(self._next_obs, slots, sparse)
+        batch = Batch(
+            obs,
+            torch.from_numpy(self.actions[slots]),
+            torch.from_numpy(self.rewards[slots]),
+            next_obs,
+            torch.from_numpy(self.terminated[slots]),
+        )
+        if torch.device(device).type == "cpu":
+            return batch
+        return Batch(*(t.to(device, non_blocking=True) for t in batch))
+
+    def state_dict(self) -> dict[str, Any]:
+        """The filled part as tensors, the write position and the sampling generator."""
+        n = self.size
+        state: dict[str, Any] = {
+            "pos": self.pos,
+            "size": n,
+            "actions": torch.from_numpy(self.actions[:n].copy()),
+            "rewards": torch.from_numpy(self.rewards[:n].copy()),
+            "terminated": torch.from_numpy(self.terminated[:n].copy()),
+            "rng": generator_state(self.rng),
+        }
+        for name in ("_obs", "_next_obs"):
+            store = getattr(self, name)
+            if self.sparse:
+                state[name] = {
+                    "counts": torch.from_numpy(store.counts[:n].copy()),
+                    "indices": torch.from_numpy(store.indices[:n].copy()),
+                    "values": torch.from_numpy(store.values[:n].copy()),
+                }
+            else:
+                state[name] = torch.from_numpy(store[:n].copy())
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a :meth:`state_dict` of a buffer with the same capacity and shapes."""
+        n = int(state["size"])
+        if not 0 <= n <= self.capacity or not 0 <= int(state["pos"]) < self.capacity:
+            raise ValueError("buffer state does not fit this buffer's capacity")
+        for name in ("_obs", "_next_obs"):
+            saved = state[name]
+            store = getattr(self, name)
+            if self.sparse:
+                width = saved["indices"].shape[1]
+                if width > store.width:
+                    store._widen(width)
+                store.counts[:n] = saved["counts"].numpy()
+                store.indices[:n, :width] = saved["indices"].numpy()
+                store.values[:n, :width] = saved["values"].numpy()
+            else:
+                store[:n] = saved.numpy()
+        self.actions[:n] = state["actions"].numpy()
+        self.rewards[:n] = state["rewards"].numpy()
+        self.terminated[:n] = state["terminated"].numpy()
+        self.pos, self.size = int(state["pos"]), n
+        set_generator_state(self.rng, state["rng"])

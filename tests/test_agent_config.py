@@ -1,0 +1,59 @@
+"""DDPGConfig: Table II defaults, validation with clear messages, plain-dict round trip."""
+
+import pytest
+
+from frl.agents import DDPGConfig
+
+
+def test_defaults_follow_table_ii() -> None:
+    config = DDPGConfig()
+    assert config.hidden_sizes == (512, 512, 256, 64)
+    assert (config.buffer_size, config.learning_starts, config.batch_size) == (100_000, 1000, 256)
+    assert (config.tau, config.gamma, config.actor_lr, config.critic_lr) == (
+        0.001,
+        0.99,
+        1e-4,
+        1e-4,
+    )
+    assert config.noise == "ou"
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"actor_lr": -1e-3}, "actor_lr"),
+        ({"critic_lr": 0.0}, "critic_lr"),
+        ({"tau": 0.0}, "tau"),
+        ({"tau": 1.5}, "tau"),
+        ({"gamma": 1.01}, "gamma"),
+        ({"batch_size": 512, "buffer_size": 256}, "batch_size"),
+        ({"noise": "pink"}, "noise"),
+        ({"hidden_sizes": ()}, "hidden_sizes"),
+        ({"hidden_sizes": (64, 0)}, "hidden_sizes"),
+        ({"learning_starts": -1}, "learning_starts"),
+        ({"gradient_steps": 0}, "gradient_steps"),
+        ({"train_freq": 1.5}, "train_freq"),
+        ({"noise_sigma": -0.1}, "noise_sigma"),
+        ({"noise_dt": 0.0}, "noise_dt"),
+        ({"noise_theta": 150.0, "noise_dt": 0.02}, "stable"),
+        ({"sparse_input": "yes"}, "sparse_input"),
+        ({"gamma": float("nan")}, "gamma"),
+    ],
+)
+def test_bad_values_raise_value_error_naming_the_field(overrides: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        DDPGConfig(**overrides)
+
+
+def test_dict_round_trip_and_list_hidden_sizes() -> None:
+    config = DDPGConfig(hidden_sizes=[64, 32], noise="gaussian", sparse_input=True)
+    assert config.hidden_sizes == (64, 32)
+    assert DDPGConfig.from_dict(config.to_dict()) == config
+
+
+def test_auto_sparse_picks_large_observations_only() -> None:
+    config = DDPGConfig()
+    assert config.use_sparse(26 * 18 * 3)
+    assert not config.use_sparse(3)
+    assert DDPGConfig(sparse_input=True).use_sparse(3)
+    assert not DDPGConfig(sparse_input=False).use_sparse(1404)

@@ -1,0 +1,61 @@
+"""The one learning test: DDPG swings up gymnasium's Pendulum-v1.
+
+Pendulum episodes end only by the 200-step time limit (truncated, never terminated), so
+learning here also depends on truncated transitions bootstrapping. Seeds 0-5 all reached
+-120 to -270 mean return over the last 10 episodes at this budget; random play scores
+about -1200 and the threshold is -400.
+"""
+
+from collections.abc import Iterator
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from frl.agents import DDPG, DDPGConfig
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread() -> Iterator[None]:
+    """Small networks run fastest on one thread; it also keeps OpenMP threads from
+    spinning against other processes on a shared CI machine."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.mark.slow
+def test_learns_pendulum_swing_up() -> None:
+    steps = 8_000
+    config = DDPGConfig(
+        hidden_sizes=(64, 64),
+        buffer_size=steps,
+        learning_starts=1_000,
+        batch_size=128,
+        tau=0.005,
+        actor_lr=1e-3,
+        critic_lr=1e-3,
+        noise="gaussian",
+        noise_sigma=0.1,  # normalised units: 0.2 N m on Pendulum's [-2, 2] torque
+    )
+    env = gym.make("Pendulum-v1")
+    agent = DDPG(env.observation_space, env.action_space, config, seed=0)
+    obs, _ = env.reset(seed=0)
+    agent.episode_start()
+    episode_return, returns = 0.0, []
+    for _ in range(steps):
+        action = agent.act(obs)
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        agent.observe(obs, action, reward, next_obs, terminated)
+        agent.update()
+        obs, episode_return = next_obs, episode_return + float(reward)
+        if terminated or truncated:
+            returns.append(episode_return)
+            obs, _ = env.reset()
+            agent.episode_start()
+            episode_return = 0.0
+    env.close()
+    assert len(returns) == steps // 200
+    assert np.mean(returns[-10:]) > -400, returns[-10:]
