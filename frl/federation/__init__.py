@@ -1,0 +1,43 @@
+"""Federated training: FedAvg, the vehicles, their worker processes and the roadside unit.
+
+- :func:`fedavg`: the pure Eq. (3) average of parameter dicts.
+- :class:`VehicleClient`: env + agent + local training, independent of transport.
+- :class:`WorkerPool` / :class:`ProcessClientPool`: one spawned process per client.
+- :class:`Coordinator`: the roadside unit's rounds, aggregation, logging, checkpoints.
+- :class:`FederationPlan`: the schemes ``central``, ``separate``, ``fedavg``.
+"""
+
+from frl.federation.client import ClientSpec, LocalUpdate, VehicleClient
+from frl.federation.coordinator import Coordinator, RunState
+from frl.federation.fedavg import TARGET_MODES, WEIGHTINGS, fedavg, state_nbytes
+from frl.federation.plan import (
+    BACKENDS,
+    SCHEMES,
+    FederationPlan,
+    client_seeds,
+    evaluation_seeds,
+)
+from frl.federation.pool import ClientPool, ProcessClientPool
+from frl.federation.workers import ClientFailure, WorkerPool, threads_per_worker
+
+__all__ = [
+    "BACKENDS",
+    "SCHEMES",
+    "TARGET_MODES",
+    "WEIGHTINGS",
+    "ClientFailure",
+    "ClientPool",
+    "ClientSpec",
+    "Coordinator",
+    "FederationPlan",
+    "LocalUpdate",
+    "ProcessClientPool",
+    "RunState",
+    "VehicleClient",
+    "WorkerPool",
+    "client_seeds",
+    "evaluation_seeds",
+    "fedavg",
+    "state_nbytes",
+    "threads_per_worker",
+]

@@ -1,0 +1,278 @@
+"""A vehicle: its environment, its DDPG agent and its local training loop, with no transport.
+
+:class:`VehicleClient` is what every transport wraps: the worker processes of
+:mod:`frl.federation.workers` today, a Flower ``ClientApp`` later. Whatever leaves a
+vehicle goes through :meth:`VehicleClient.train` (a :class:`LocalUpdate`) or
+:meth:`VehicleClient.get_parameters`: model parameters and scalar metrics, never
+observations, replay data, optimizer moments or noise state (the paper's privacy claim,
+Section I; tested in tests/test_federation_privacy.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from torch import Tensor
+
+from frl.agents import DDPG, DDPGConfig, is_target_key
+from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
+from frl.episodes import EpisodeRecord, Policy, run_episodes
+from frl.fileio import write_json_atomic
+
+LOSS_NAMES: tuple[str, ...] = ("critic_loss", "actor_loss", "q_mean")
+"""Per-step learning statistics a client reports (NaN on steps without an update)."""
+
+PROGRESS_EVERY_STEPS = 100
+
+_SEED_HALF_RANGE = 2**30
+
+
+def training_sumo_seed(base_seed: int, restart: int) -> int:
+    """SUMO seed of a client's ``restart``-th simulation start. Always even.
+
+    Evaluation seeds are always odd (:func:`frl.federation.seeds.evaluation_seeds`), so
+    test traffic never replays a training simulation.
+    """
+    mixed = np.random.SeedSequence([int(base_seed), int(restart)]).generate_state(1, np.uint32)
+    return 2 * (int(mixed[0]) % _SEED_HALF_RANGE)
+
+
+@dataclass(frozen=True)
+class ClientSpec:
+    """Everything needed to build one vehicle; picklable, so a worker process can build it."""
+
+    index: int
+    task: str
+    """``left``, ``straight``, ``right``, or ``random`` (Central-DDPG)."""
+    env: EnvConfig
+    reward: RewardConfig
+    agent: DDPGConfig
+    agent_seed: int
+    env_seed: int
+    """Base of the SUMO seeds of this vehicle's training simulations."""
+    device: str = "cpu"
+
+    @property
+    def name(self) -> str:
+        """``client{index}_{task}``, the prefix of this vehicle's TensorBoard tags."""
+        return f"client{self.index}_{self.task}"
+
+
+@dataclass
+class LocalUpdate:
+    """What a vehicle sends to the roadside unit after a round of local training."""
+
+    client: str
+    num_steps: int
+    """Environment steps taken in this round (the FedAvg weight under ``weighting=steps``)."""
+    total_steps: int
+    """Environment steps this vehicle has taken since the run began."""
+    step_rewards: np.ndarray
+    """float32 (num_steps,): the instantaneous reward of every step (paper's Fig. 4)."""
+    episodes: list[EpisodeRecord]
+    """Episodes that ended in this round."""
+    losses: dict[str, np.ndarray] = field(default_factory=dict)
+    """float32 (num_steps,) per name in :data:`LOSS_NAMES`, NaN where no update ran."""
+    parameters: dict[str, Tensor] | None = None
+    """The model upload (a subset of the agent's federated state), or None if not asked."""
+    cpu_time_s: float = 0.0
+    """CPU seconds the vehicle's process spent on this round (for the timing benchmarks)."""
+
+
+ProgressCallback = Callable[..., None]
+
+
+class VehicleClient:
+    """One vehicle: an :class:`IntersectionEnv` for its task and a :class:`DDPG` agent.
+
+    Episodes run on across rounds: a round boundary (and a parameter download) happens
+    between two steps, as a vehicle keeps driving while it talks to the roadside unit.
+    Owns one SUMO simulation, so with the default libsumo backend there is one client
+    per process.
+    """
+
+    def __init__(self, spec: ClientSpec) -> None:
+        self.spec = spec
+        self.env = IntersectionEnv(dataclasses.replace(spec.env, task=spec.task), spec.reward)
+        self.agent = DDPG(
+            self.env.observation_space,
+            self.env.action_space,
+            spec.agent,
+            seed=spec.agent_seed,
+            device=spec.device,
+        )
+        self._observation: np.ndarray | None = None
+        self._episode_return = 0.0
+        self._restarts = 0
+        """SUMO (re)starts so far; the next start uses ``training_sumo_seed(env_seed, n)``."""
+        self._needs_restart = True
+        self._episodes_total = 0
+        self._last_return: float | None = None
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    # ---------------------------------------------------------------- training
+    def train(
+        self,
+        num_steps: int,
+        upload: bool = True,
+        include_targets: bool = True,
+        progress: ProgressCallback | None = None,
+    ) -> LocalUpdate:
+        """Take ``num_steps`` environment steps, learning after each (Section III.C.1).
+
+        Args:
+            num_steps: environment steps of this round.
+            upload: attach the model parameters to the update.
+            include_targets: upload target networks too (``federation.targets=average``).
+            progress: called as ``progress(steps=, total_steps=, episodes=, last_return=)``
+                every :data:`PROGRESS_EVERY_STEPS` steps and at each episode end.
+        """
+        if num_steps <= 0:
+            raise ValueError(f"num_steps must be positive, got {num_steps}")
+        agent, env = self.agent, self.env
+        cpu_started = time.process_time()
+        rewards = np.empty(num_steps, np.float32)
+        losses = {name: np.full(num_steps, np.nan, np.float32) for name in LOSS_NAMES}
+        episodes: list[EpisodeRecord] = []
+        for i in range(num_steps):
+            if self._observation is None:
+                self._start_episode()
+            observation = self._observation
+            action = agent.act(observation, explore=True)
+            next_observation, reward, terminated, truncated, info = env.step(action)
+            agent.observe(observation, action, float(reward), next_observation, terminated)
+            for name, value in agent.update().items():
+                if name in losses:
+                    losses[name][i] = value
+            rewards[i] = reward
+            self._episode_return += float(reward)
+            ended = terminated or truncated
+            if ended:
+                episodes.append(
+                    EpisodeRecord(
+                        task=info["task"],
+                        episode_return=self._episode_return,
+                        collision=bool(info["collision"]),
+                        arrived=bool(info["arrived"]),
+                        timeout=bool(truncated and not terminated),
+                        steps=int(info["travel_time_steps"]),
+                        end_step=agent.num_env_steps,
+                    )
+                )
+                self._episodes_total += 1
+                self._last_return = self._episode_return
+                self._observation = None
+            else:
+                self._observation = next_observation
+            if progress is not None and (ended or (i + 1) % PROGRESS_EVERY_STEPS == 0):
+                progress(
+                    steps=i + 1,
+                    total_steps=agent.num_env_steps,
+                    episodes=self._episodes_total,
+                    last_return=self._last_return,
+                )
+        return LocalUpdate(
+            client=self.name,
+            num_steps=num_steps,
+            total_steps=agent.num_env_steps,
+            step_rewards=rewards,
+            episodes=episodes,
+            losses=losses,
+            parameters=self.get_parameters(include_targets) if upload else None,
+            cpu_time_s=time.process_time() - cpu_started,
+        )
+
+    def _start_episode(self) -> None:
+        if self._needs_restart:
+            seed = training_sumo_seed(self.spec.env_seed, self._restarts)
+            self._observation, _ = self.env.reset(seed=seed)
+            self._restarts += 1
+            self._needs_restart = False
+        else:  # a new ego in the traffic that kept flowing
+            self._observation, _ = self.env.reset()
+        self._episode_return = 0.0
+        self.agent.episode_start()
+
+    # -------------------------------------------------------------- parameters
+    def get_parameters(self, include_targets: bool = True) -> dict[str, Tensor]:
+        """CPU copies of the model parameters: the agent's federated state, without the
+        target networks unless ``include_targets``. Nothing else ever leaves the vehicle."""
+        state = self.agent.federated_state()
+        if include_targets:
+            return state
+        return {k: v for k, v in state.items() if not is_target_key(k)}
+
+    def set_parameters(self, parameters: dict[str, Tensor], sync_targets: bool = False) -> None:
+        """Load the global model. Keys must cover the online networks; target keys are
+        optional. ``sync_targets`` then copies online -> target (``targets=resync``)."""
+        state = self.agent.federated_state()
+        unexpected = sorted(set(parameters) - set(state))
+        if unexpected:
+            raise ValueError(f"{self.name}: unexpected parameter {unexpected[0]!r}")
+        missing = sorted(k for k in state if not is_target_key(k) and k not in parameters)
+        if missing:
+            raise ValueError(f"{self.name}: global model lacks {missing[0]!r}")
+        state.update(parameters)
+        self.agent.load_federated_state(state)
+        if sync_targets:
+            self.agent.sync_targets()
+
+    # -------------------------------------------------------------- evaluation
+    def policy(self) -> Policy:
+        """The deterministic policy (exploration off)."""
+        return lambda observation: self.agent.act(observation, explore=False)
+
+    def evaluate(self, task: str, seeds: list[int]) -> list[EpisodeRecord]:
+        """Test episodes with exploration off, one per seed (restarts SUMO each time).
+
+        The episode in progress, if any, is dropped; training resumes on a fresh start.
+        """
+        records = run_episodes(self.env, self.policy(), task, seeds)
+        self._observation = None
+        self._needs_restart = True
+        return records
+
+    # ------------------------------------------------------------- checkpoints
+    def save(self, directory: str | os.PathLike[str]) -> None:
+        """Write this vehicle's full state for resume: agent with replay buffer, optimizer
+        moments, noise and generators, plus the client's counters. Stays on the vehicle."""
+        directory = Path(directory)
+        self.agent.save(directory / f"{self.name}.pt", include_buffer=True)
+        write_json_atomic(
+            directory / f"{self.name}.json",
+            {
+                "restarts": self._restarts,
+                "episodes_total": self._episodes_total,
+                "last_return": self._last_return,
+                "num_env_steps": self.agent.num_env_steps,
+            },
+        )
+
+    def load(self, directory: str | os.PathLike[str]) -> None:
+        """Restore :meth:`save`. The episode that was running at save time is not restored
+        (SUMO's state is not saved): the next step starts a new simulation."""
+        directory = Path(directory)
+        self.agent.load(directory / f"{self.name}.pt")
+        state = json.loads((directory / f"{self.name}.json").read_text())
+        self._restarts = int(state["restarts"])
+        self._episodes_total = int(state["episodes_total"])
+        self._last_return = state["last_return"]
+        self._observation = None
+        self._needs_restart = True
+
+    def save_model(self, path: str | os.PathLike[str]) -> None:
+        """Write the model alone (no replay buffer), loadable with ``DDPG.from_checkpoint``."""
+        self.agent.save(path, include_buffer=False)
+
+    def close(self) -> None:
+        self.env.close()

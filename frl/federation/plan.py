@@ -1,0 +1,140 @@
+"""The three training schemes of Section IV.B, their round structure and their seeds."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from frl.envs import TASKS
+from frl.federation.fedavg import TARGET_MODES, WEIGHTINGS
+
+SCHEMES: tuple[str, ...] = ("central", "separate", "fedavg")
+"""``central``: Central-DDPG, one agent, a random task per episode. ``separate``:
+Sep-DDPG, one agent per task, never averaged. ``fedavg``: FedAvg-DDPG, one agent per
+task, averaged into one global model every ``interval`` steps."""
+
+BACKENDS: tuple[str, ...] = ("processes",)
+"""How clients run: ``processes`` = one spawned worker process per client (libsumo
+allows one SUMO per process). A Flower backend can be added beside it."""
+
+_SEED_HALF_RANGE = 2**30
+
+
+@dataclass(frozen=True)
+class FederationPlan:
+    """Which clients train, for how long, and how rounds and aggregation go.
+
+    Every scheme runs in rounds of ``interval`` environment steps per client (the last
+    round may be shorter), so logging and checkpoints have the same cadence; only
+    ``fedavg`` averages at the end of a round.
+    """
+
+    scheme: str = "fedavg"
+    tasks: tuple[str, ...] = TASKS
+    """Client tasks of ``separate``/``fedavg``, the tasks ``central`` draws from, and
+    the tasks every scheme is tested on."""
+    total_steps: int = 10_000
+    """Environment steps per agent (the paper's budget: 10,000)."""
+    interval: int = 2_000
+    """Environment steps per client between two aggregations (the paper's best: 2,000)."""
+    targets: str = "average"
+    """``average``: target networks are averaged like the online ones. ``resync``: only
+    online networks are uploaded and averaged; each client then copies online -> target."""
+    weighting: str = "equal"
+    """``equal``: Eq. (3). ``steps``: clients weighted by their steps in the round."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tasks", tuple(self.tasks))
+        if self.scheme not in SCHEMES:
+            raise ValueError(
+                f"unknown federation scheme {self.scheme!r}; choose one of {', '.join(SCHEMES)}"
+            )
+        if not self.tasks:
+            raise ValueError("federation.tasks must name at least one task")
+        for task in self.tasks:
+            if task not in TASKS:
+                raise ValueError(
+                    f"unknown task {task!r} in federation.tasks; choose from {', '.join(TASKS)}"
+                )
+        if len(set(self.tasks)) != len(self.tasks):
+            raise ValueError(f"federation.tasks must not repeat a task, got {list(self.tasks)}")
+        if not _is_int(self.total_steps) or self.total_steps <= 0:
+            raise ValueError(f"total_steps must be a positive integer, got {self.total_steps!r}")
+        if not _is_int(self.interval) or not 0 < self.interval <= self.total_steps:
+            raise ValueError(
+                f"interval must be a whole number of environment steps in [1, total_steps="
+                f"{self.total_steps}], got {self.interval!r}"
+            )
+        if self.targets not in TARGET_MODES:
+            raise ValueError(
+                f"federation.targets must be one of {', '.join(TARGET_MODES)}, got {self.targets!r}"
+            )
+        if self.weighting not in WEIGHTINGS:
+            raise ValueError(
+                f"federation.weighting must be one of {', '.join(WEIGHTINGS)}, "
+                f"got {self.weighting!r}"
+            )
+
+    @property
+    def aggregates(self) -> bool:
+        """Whether rounds end in FedAvg (only the ``fedavg`` scheme)."""
+        return self.scheme == "fedavg"
+
+    @property
+    def client_tasks(self) -> tuple[str, ...]:
+        """One entry per client: ``("random",)`` for ``central``, else ``tasks``."""
+        return ("random",) if self.scheme == "central" else self.tasks
+
+    @property
+    def num_rounds(self) -> int:
+        return math.ceil(self.total_steps / self.interval)
+
+    def round_steps(self, round_index: int) -> int:
+        """Environment steps per client in round ``round_index`` (0-based)."""
+        start = round_index * self.interval
+        return max(0, min(self.interval, self.total_steps - start))
+
+    def round_end_step(self, round_index: int) -> int:
+        return min((round_index + 1) * self.interval, self.total_steps)
+
+    def model_files(self, client_names: list[str]) -> dict[str, str]:
+        """Which model file (under ``models/``) is tested on each task.
+
+        FedAvg-DDPG: the one global model on every task. Sep-DDPG: each task's own model.
+        Central-DDPG: its one model on every task.
+        """
+        if self.scheme == "fedavg":
+            return {task: "global.pt" for task in self.tasks}
+        if self.scheme == "central":
+            return {task: "central.pt" for task in self.tasks}
+        return {task: f"{name}.pt" for task, name in zip(self.tasks, client_names, strict=True)}
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def client_seeds(seed: int, num_clients: int) -> list[tuple[int, int]]:
+    """``(agent_seed, env_seed)`` of each client, from ``SeedSequence(seed).spawn(n)``."""
+    seeds = []
+    for child in np.random.SeedSequence(int(seed)).spawn(num_clients):
+        agent_seed, env_seed = child.generate_state(2, np.uint32)
+        seeds.append((int(agent_seed), int(env_seed)))
+    return seeds
+
+
+_EVALUATION_BRANCH = 0xE7A1
+"""Spawn-key root of the evaluation streams, apart from the clients' ``spawn()`` keys."""
+
+
+def evaluation_seeds(seed: int, task: str, episodes: int) -> list[int]:
+    """SUMO seeds of the test episodes of ``task``: odd, so never a training seed (even).
+
+    They depend on the run seed and the task only, so every scheme trained with the same
+    ``seed`` is tested on exactly the same traffic (common random numbers).
+    """
+    branch = np.random.SeedSequence(int(seed), spawn_key=(_EVALUATION_BRANCH, TASKS.index(task)))
+    raw = branch.generate_state(episodes, np.uint32) if episodes else np.zeros(0, np.uint32)
+    return [2 * (int(x) % _SEED_HALF_RANGE) + 1 for x in raw]

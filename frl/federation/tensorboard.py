@@ -1,0 +1,137 @@
+"""TensorBoard logging in one fixed tag scheme (documented in docs/training.md).
+
+The x axis of every tag is the environment step *per client* (1 ... total_steps), so
+curves of runs with different schemes, intervals or client counts line up.
+
+| tag | value |
+|---|---|
+| ``train/step_reward`` | instantaneous reward of each step, averaged over clients (Fig. 4) |
+| ``client{i}_{task}/episode_return`` | return of each finished episode, at its last step |
+| ``client{i}_{task}/episode_collision`` | 1 if that episode ended in a collision, else 0 |
+| ``client{i}_{task}/episode_arrived`` | 1 if it arrived |
+| ``client{i}_{task}/episode_travel_time_steps`` | its length in steps |
+| ``client{i}_{task}/critic_loss`` ``actor_loss`` ``q_mean`` | mean over windows of 100 steps |
+| ``server/round`` | completed aggregation rounds, at each round's last step |
+| ``server/bytes_up`` ``server/bytes_down`` | bytes up/down in that round, all clients |
+| ``server/bytes_total`` | cumulative bytes up + down |
+| ``server/round_time_s`` | wall time of the round |
+| ``eval/{task}/{metric}``, ``eval/average/{metric}`` | test metrics, at the last step |
+
+plus an hparams entry (key hyperparameters against the ``eval/average/*`` metrics).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from frl.federation.client import LOSS_NAMES, LocalUpdate
+
+LOSS_WINDOW_STEPS = 100
+EVAL_METRICS: tuple[str, ...] = (
+    "average_reward",
+    "collision_rate",
+    "arrival_rate",
+    "timeout_rate",
+    "average_travel_time",
+    "average_episode_steps",
+)
+
+
+def step_reward_tag() -> str:
+    return "train/step_reward"
+
+
+class TrainingLogger:
+    """Writes the tag scheme above into ``log_dir``; close it (or use ``with``)."""
+
+    def __init__(self, log_dir: str | os.PathLike[str], purge_step: int | None = None) -> None:
+        # Imported here so that importing frl.federation does not load tensorboard.
+        from torch.utils.tensorboard import SummaryWriter
+
+        # purge_step: on resume, drop events a killed session wrote after its last checkpoint.
+        self.writer = SummaryWriter(os.fspath(log_dir), purge_step=purge_step, flush_secs=30)
+
+    def __enter__(self) -> TrainingLogger:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def log_round(
+        self,
+        start_step: int,
+        updates: Sequence[LocalUpdate],
+        round_number: int,
+        bytes_up: int,
+        bytes_down: int,
+        bytes_total: int,
+        round_time_s: float,
+    ) -> None:
+        """Everything about one round; steps ``start_step+1 .. start_step+num_steps``."""
+        writer = self.writer
+        rewards = np.mean(np.stack([u.step_rewards for u in updates]), axis=0)
+        for offset, value in enumerate(rewards.tolist(), start=start_step + 1):
+            writer.add_scalar("train/step_reward", value, offset)
+        for update in updates:
+            prefix = update.client
+            for episode in update.episodes:
+                step = episode.end_step
+                writer.add_scalar(f"{prefix}/episode_return", episode.episode_return, step)
+                writer.add_scalar(f"{prefix}/episode_collision", float(episode.collision), step)
+                writer.add_scalar(f"{prefix}/episode_arrived", float(episode.arrived), step)
+                writer.add_scalar(f"{prefix}/episode_travel_time_steps", episode.steps, step)
+            for name in LOSS_NAMES:
+                values = update.losses.get(name)
+                if values is None:
+                    continue
+                for begin in range(0, len(values), LOSS_WINDOW_STEPS):
+                    window = values[begin : begin + LOSS_WINDOW_STEPS]
+                    window = window[np.isfinite(window)]
+                    if window.size:
+                        end = start_step + min(begin + LOSS_WINDOW_STEPS, len(values))
+                        writer.add_scalar(f"{prefix}/{name}", float(window.mean()), end)
+        end_step = start_step + len(rewards)
+        writer.add_scalar("server/round", round_number, end_step)
+        writer.add_scalar("server/bytes_up", bytes_up, end_step)
+        writer.add_scalar("server/bytes_down", bytes_down, end_step)
+        writer.add_scalar("server/bytes_total", bytes_total, end_step)
+        writer.add_scalar("server/round_time_s", round_time_s, end_step)
+
+    def log_evaluation(
+        self, per_task: Mapping[str, Mapping[str, Any]], average: Mapping[str, Any], step: int
+    ) -> None:
+        for group, metrics in [*per_task.items(), ("average", average)]:
+            for name in EVAL_METRICS:
+                value = metrics.get(name)
+                if value is not None and math.isfinite(value):
+                    self.writer.add_scalar(f"eval/{group}/{name}", value, step)
+
+    def log_hparams(self, hparams: Mapping[str, Any], metric_tags: Sequence[str]) -> None:
+        """An hparams entry in this run (not in a sub-run, as ``add_hparams`` would make),
+        pointing at scalar tags already logged, so the HParams tab compares sweep runs."""
+        from torch.utils.tensorboard.summary import hparams as hparams_summary
+
+        clean = {k: _hparam_value(v) for k, v in hparams.items()}
+        experiment, start, end = hparams_summary(clean, dict.fromkeys(metric_tags, 0.0))
+        file_writer = self.writer._get_file_writer()
+        for summary in (experiment, start, end):
+            file_writer.add_summary(summary)
+
+    def flush(self) -> None:
+        self.writer.flush()
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+def _hparam_value(value: Any) -> bool | int | float | str:
+    if isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, (list, tuple)):
+        return "x".join(str(v) for v in value) if value else "-"
+    return str(value)

@@ -1,0 +1,346 @@
+"""Worker processes: one spawned process per client, each hosting one object, called over a pipe.
+
+libsumo holds one simulation per process, so every vehicle lives in its own process.
+The pool is a small remote-call layer: the parent asks worker ``i`` to run
+``method(*args)`` on its object and waits for the results of all workers at once.
+
+Messages are plain pickles (``pickle.dumps``, not multiprocessing's ForkingPickler,
+which would move tensors through shared memory): what crosses the pipe is a copy, as
+it would be over a network, and :meth:`WorkerPool.call` can record it.
+
+Failure handling, the reason this module exists:
+
+- An exception in a worker comes back with its traceback and raises
+  :class:`ClientFailure` naming the client.
+- A worker that dies (killed, segfault in SUMO) is noticed through its process
+  sentinel within ``poll_s`` and raises :class:`ClientFailure` with its exit code.
+- A call running past ``timeout_s`` raises :class:`ClientFailure` too.
+- Leaving the ``with`` block, by return, exception or Ctrl-C, stops every worker:
+  a polite ``close`` message when all is well, otherwise SIGTERM, then SIGKILL.
+  Workers ignore SIGINT (the parent handles Ctrl-C), get SIGTERM from Linux when the
+  parent dies (``PR_SET_PDEATHSIG``) and exit when the parent's end of the pipe closes,
+  so a killed parent leaves no orphans behind either.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import os
+import pickle
+import signal
+import sys
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from multiprocessing.connection import Connection, wait
+from typing import Any
+
+_PROTOCOL = pickle.HIGHEST_PROTOCOL
+_THREAD_ENV_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+MessageHook = Callable[[str, str, Any], None]
+"""``hook(client_name, kind, payload)`` sees every message a worker sends."""
+
+
+class ClientFailure(RuntimeError):
+    """A client's worker raised, died or timed out; the run cannot continue."""
+
+    def __init__(
+        self,
+        client: str,
+        reason: str,
+        exitcode: int | None = None,
+        remote_traceback: str | None = None,
+    ) -> None:
+        message = f"client {client} failed: {reason}"
+        if remote_traceback:
+            message += f"\n--- traceback in the worker of {client} ---\n{remote_traceback}"
+        super().__init__(message)
+        self.client = client
+        self.reason = reason
+        self.exitcode = exitcode
+        self.remote_traceback = remote_traceback
+
+
+def available_cores() -> int:
+    """CPUs this process may run on (the container's share, not the host's)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def threads_per_worker(num_workers: int, cores: int | None = None) -> int:
+    """Torch threads per worker so that the workers together use every core once."""
+    cores = available_cores() if cores is None else cores
+    return max(1, cores // max(1, num_workers))
+
+
+def _send(conn: Connection, message: Any) -> None:
+    conn.send_bytes(pickle.dumps(message, protocol=_PROTOCOL))
+
+
+def _receive(conn: Connection) -> Any:
+    return pickle.loads(conn.recv_bytes())
+
+
+def _exit_with_parent() -> None:
+    """Ask Linux to SIGTERM this worker when the coordinator dies, even by SIGKILL.
+
+    Without it a worker would notice only at its next message, up to a round later.
+    """
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        pr_set_pdeathsig = 1
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+    if os.getppid() == 1:  # the parent died before prctl took effect
+        sys.exit(143)
+
+
+def _worker_main(conn: Connection, name: str, factory: Callable[[], Any], num_threads: int) -> None:
+    """Entry point of a worker process: build the object, then serve calls until told to stop."""
+    for var in _THREAD_ENV_VARS:
+        os.environ[var] = str(num_threads)
+    # The coordinator handles Ctrl-C and stops the workers; SIGTERM unwinds so that
+    # ``close()`` below runs (a TraCI backend's SUMO child is stopped with it).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+    _exit_with_parent()
+    import torch
+
+    torch.set_num_threads(num_threads)
+    with contextlib.suppress(RuntimeError):  # already set: harmless
+        torch.set_num_interop_threads(1)
+    hosted: Any = None
+    try:
+        try:
+            hosted = factory()
+        except BaseException as error:
+            _send(conn, ("error", f"{type(error).__name__}: {error}", traceback.format_exc()))
+            return
+        _send(conn, ("ready", None))
+        while True:
+            try:
+                message = _receive(conn)
+            except (EOFError, OSError):  # the coordinator is gone
+                return
+            if message[0] == "close":
+                return
+            _, method, args, kwargs, with_progress = message
+            try:
+                if with_progress:
+                    kwargs = {**kwargs, "progress": lambda **info: _send(conn, ("progress", info))}
+                result = getattr(hosted, method)(*args, **kwargs)
+            except (BrokenPipeError, EOFError):
+                return
+            except BaseException as error:
+                _send(conn, ("error", f"{type(error).__name__}: {error}", traceback.format_exc()))
+                continue
+            _send(conn, ("ok", result))
+    except (BrokenPipeError, EOFError, ConnectionResetError):
+        return
+    finally:
+        close = getattr(hosted, "close", None)
+        if close is not None:
+            with contextlib.suppress(Exception):
+                close()
+        conn.close()
+
+
+class WorkerPool:
+    """Spawned worker processes, each hosting ``factory()`` for one named client.
+
+    Use as a context manager; :meth:`call` runs a method on every (or some) worker in
+    parallel and returns the results in worker order.
+
+    Args:
+        clients: ``(name, factory)`` pairs; ``factory`` must be picklable (a class and a
+            picklable spec via ``functools.partial``, for instance).
+        num_threads: torch threads in each worker; default: the cores split evenly.
+        timeout_s: longest a single call may take in any worker; None waits forever
+            (deaths are still detected).
+        poll_s: how often a waiting parent checks its workers for signs of life.
+        start_timeout_s: longest the workers may take to start and build their objects.
+        on_message: sees every message a worker sends (tests use it to audit traffic).
+    """
+
+    def __init__(
+        self,
+        clients: Sequence[tuple[str, Callable[[], Any]]],
+        num_threads: int | None = None,
+        timeout_s: float | None = None,
+        poll_s: float = 0.5,
+        on_message: MessageHook | None = None,
+        start_timeout_s: float = 300.0,
+    ) -> None:
+        if not clients:
+            raise ValueError("a worker pool needs at least one client")
+        self.names = [name for name, _ in clients]
+        self._factories = [factory for _, factory in clients]
+        self.num_threads = num_threads or threads_per_worker(len(clients))
+        self.timeout_s = timeout_s
+        self.poll_s = poll_s
+        self.start_timeout_s = start_timeout_s
+        self.on_message = on_message
+        self._processes: list[mp.process.BaseProcess] = []
+        self._connections: list[Connection] = []
+        self.busy_s = 0.0
+        """Seconds the parent spent waiting in :meth:`call`."""
+
+    def __enter__(self) -> WorkerPool:
+        self.start()
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        self.close(graceful=exc_type is None)
+
+    @property
+    def pids(self) -> list[int | None]:
+        return [process.pid for process in self._processes]
+
+    def start(self) -> None:
+        """Spawn the workers and wait until each has built its object."""
+        context = mp.get_context("spawn")
+        try:
+            for name, factory in zip(self.names, self._factories, strict=True):
+                parent_end, child_end = context.Pipe(duplex=True)
+                process = context.Process(
+                    target=_worker_main,
+                    args=(child_end, name, factory, self.num_threads),
+                    name=f"frl-{name}",
+                    daemon=True,
+                )
+                process.start()
+                child_end.close()
+                self._processes.append(process)
+                self._connections.append(parent_end)
+            self._collect(range(len(self.names)), expect="ready", timeout_s=self.start_timeout_s)
+        except BaseException:
+            self.close(graceful=False)
+            raise
+
+    def call(
+        self,
+        method: str,
+        args: Sequence[tuple[Any, ...]] | None = None,
+        kwargs: Sequence[dict[str, Any]] | dict[str, Any] | None = None,
+        workers: Sequence[int] | None = None,
+        on_progress: Callable[[int, dict[str, Any]], None] | None = None,
+    ) -> list[Any]:
+        """Run ``method`` in ``workers`` (default: all) in parallel; their results in order.
+
+        ``args[k]``/``kwargs[k]`` go to the k-th selected worker; a single ``kwargs`` dict
+        goes to all. With ``on_progress``, the method receives a ``progress`` callback
+        whose calls arrive here as ``on_progress(worker_index, info)``.
+        """
+        selected = list(range(len(self.names))) if workers is None else list(workers)
+        args = args if args is not None else [()] * len(selected)
+        if isinstance(kwargs, dict) or kwargs is None:
+            kwargs = [dict(kwargs or {})] * len(selected)
+        if len(args) != len(selected) or len(kwargs) != len(selected):
+            raise ValueError("args and kwargs need one entry per selected worker")
+        for index, a, k in zip(selected, args, kwargs, strict=True):
+            try:
+                message = ("call", method, tuple(a), k, on_progress is not None)
+                _send(self._connections[index], message)
+            except (BrokenPipeError, OSError) as error:
+                raise self._death(index, f"cannot send {method!r}: {error}") from None
+        results = self._collect(selected, expect="ok", on_progress=on_progress)
+        return [results[index] for index in selected]
+
+    def _collect(
+        self,
+        selected: Sequence[int] | range,
+        expect: str,
+        on_progress: Callable[[int, dict[str, Any]], None] | None = None,
+        timeout_s: float | None = -1.0,
+    ) -> dict[int, Any]:
+        timeout_s = self.timeout_s if timeout_s == -1.0 else timeout_s
+        started = time.monotonic()
+        deadline = None if timeout_s is None else started + timeout_s
+        pending = set(selected)
+        results: dict[int, Any] = {}
+        try:
+            while pending:
+                by_handle: dict[Any, tuple[str, int]] = {}
+                for index in pending:
+                    by_handle[self._connections[index]] = ("conn", index)
+                    by_handle[self._processes[index].sentinel] = ("died", index)
+                timeout = self.poll_s
+                if deadline is not None:
+                    timeout = max(0.0, min(timeout, deadline - time.monotonic()))
+                ready = wait(list(by_handle), timeout=timeout)
+                # Read messages before declaring deaths: a worker may report its error and exit.
+                for handle in sorted(ready, key=lambda h: by_handle[h][0] != "conn"):
+                    kind, index = by_handle[handle]
+                    if index not in pending:
+                        continue
+                    if kind == "died":
+                        if self._connections[index].poll():
+                            continue  # its last words come first, next time round
+                        raise self._death(index, "its worker process died")
+                    try:
+                        message = _receive(self._connections[index])
+                    except (EOFError, OSError):
+                        raise self._death(index, "its worker process closed the pipe") from None
+                    tag, payload = message[0], message[1]
+                    if self.on_message is not None:
+                        self.on_message(self.names[index], tag, payload)
+                    if tag == "progress":
+                        if on_progress is not None:
+                            on_progress(index, payload)
+                    elif tag == "error":
+                        raise ClientFailure(self.names[index], payload, None, message[2])
+                    elif tag == expect:
+                        results[index] = payload
+                        pending.discard(index)
+                    else:
+                        raise ClientFailure(self.names[index], f"unexpected message {tag!r}")
+                if deadline is not None and pending and time.monotonic() >= deadline:
+                    index = min(pending)
+                    raise ClientFailure(
+                        self.names[index], f"no answer within timeout_s={timeout_s:g} s"
+                    )
+        finally:
+            self.busy_s += time.monotonic() - started
+        return results
+
+    def _death(self, index: int, reason: str) -> ClientFailure:
+        process = self._processes[index]
+        process.join(timeout=1.0)
+        code = process.exitcode
+        detail = f"{reason} (pid {process.pid}, exit code {code}"
+        if code is not None and code < 0:
+            with contextlib.suppress(ValueError):
+                detail += f", signal {signal.Signals(-code).name}"
+        return ClientFailure(self.names[index], detail + ")", exitcode=code)
+
+    def close(self, graceful: bool = True, grace_s: float = 10.0) -> None:
+        """Stop every worker; safe to call twice. Never leaves a process running."""
+        if graceful:
+            for conn, process in zip(self._connections, self._processes, strict=False):
+                if process.is_alive():
+                    with contextlib.suppress(BrokenPipeError, OSError):
+                        _send(conn, ("close",))
+            deadline = time.monotonic() + grace_s
+            for process in self._processes:
+                process.join(timeout=max(0.0, deadline - time.monotonic()))
+        for process in self._processes:
+            if process.is_alive():
+                process.terminate()
+        for process in self._processes:
+            process.join(timeout=3.0)
+            if process.is_alive():
+                process.kill()
+                process.join(timeout=3.0)
+        for conn in self._connections:
+            conn.close()
+        for process in self._processes:
+            if hasattr(process, "close") and not process.is_alive():
+                process.close()
+        self._processes = []
+        self._connections = []

@@ -1,0 +1,279 @@
+"""The training configuration: Hydra schemas, their validation and the library configs.
+
+The schema dataclasses below are registered in Hydra's ConfigStore (``train_schema``)
+and are the root of ``conf/config.yaml``, so a typo (``agent.lrr=1``) or a wrong type
+(``interval=abc``) fails while Hydra composes the config, before anything runs. Their
+defaults are read from the library dataclasses, which remain the single source of truth.
+
+:func:`validate` then checks what a schema cannot (``interval`` within the budget, known
+scheme, tasks and reward, ranges) and builds the typed library configs; it raises
+:class:`ConfigError` before any process starts. Library classes never see a DictConfig.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from frl.agents import DDPGConfig
+from frl.envs import TASKS, EnvConfig, GridConfig, RewardConfig, ScenarioConfig
+from frl.envs.config import REWARD_NAMES
+from frl.federation.plan import BACKENDS, FederationPlan
+
+_ENV = EnvConfig()
+_SCENARIO = ScenarioConfig()
+_GRID = GridConfig()
+_AGENT = DDPGConfig()
+_REWARD = RewardConfig()
+
+
+class ConfigError(ValueError):
+    """The configuration is invalid; raised before any worker or SUMO starts."""
+
+
+# ---------------------------------------------------------------- Hydra schemas
+@dataclass
+class ScenarioSchema:
+    """:class:`frl.envs.ScenarioConfig` (docs/scenario.md)."""
+
+    arm_length: float = _SCENARIO.arm_length
+    lane_width: float = _SCENARIO.lane_width
+    speed_limit: float = _SCENARIO.speed_limit
+    step_length: float = _SCENARIO.step_length
+    human_arrival_period_steps: float = _SCENARIO.human_arrival_period_steps
+    human_arrival_process: str = _SCENARIO.human_arrival_process
+    ego_start_distance: float = _SCENARIO.ego_start_distance
+    ego_destination_distance: float = _SCENARIO.ego_destination_distance
+    vehicle_length: float = _SCENARIO.vehicle_length
+    vehicle_width: float = _SCENARIO.vehicle_width
+
+
+@dataclass
+class GridSchema:
+    """:class:`frl.envs.GridConfig`: the Eq. (1) observation grid."""
+
+    lateral_range: list[float] = field(default_factory=lambda: list(_GRID.lateral_range))
+    lateral_cells: int = _GRID.lateral_cells
+    longitudinal_range: list[float] = field(default_factory=lambda: list(_GRID.longitudinal_range))
+    longitudinal_cells: int = _GRID.longitudinal_cells
+    speed_scale: float = _GRID.speed_scale
+    heading_scale_deg: float = _GRID.heading_scale_deg
+
+
+@dataclass
+class EnvSchema:
+    """:class:`frl.envs.EnvConfig` without ``task``, which the scheme decides."""
+
+    max_episode_steps: int = _ENV.max_episode_steps
+    accel_scale: float = _ENV.accel_scale
+    warmup_steps: int = _ENV.warmup_steps
+    backend: str = _ENV.backend
+    scenario: ScenarioSchema = field(default_factory=ScenarioSchema)
+    grid: GridSchema = field(default_factory=GridSchema)
+
+
+@dataclass
+class AgentSchema:
+    """:class:`frl.agents.DDPGConfig` (the paper's Table II) plus the algorithm's name."""
+
+    name: str = "ddpg"
+    hidden_sizes: list[int] = field(default_factory=lambda: list(_AGENT.hidden_sizes))
+    buffer_size: int = _AGENT.buffer_size
+    learning_starts: int = _AGENT.learning_starts
+    batch_size: int = _AGENT.batch_size
+    tau: float = _AGENT.tau
+    gamma: float = _AGENT.gamma
+    actor_lr: float = _AGENT.actor_lr
+    critic_lr: float = _AGENT.critic_lr
+    train_freq: int = _AGENT.train_freq
+    gradient_steps: int = _AGENT.gradient_steps
+    noise: str = _AGENT.noise
+    noise_sigma: float = _AGENT.noise_sigma
+    noise_theta: float = _AGENT.noise_theta
+    noise_dt: float = _AGENT.noise_dt
+    random_warmup: bool = _AGENT.random_warmup
+    sparse_input: Any = _AGENT.sparse_input
+    """true, false or auto (OmegaConf has no bool-or-str type; checked by DDPGConfig)."""
+    sparse_min_features: int = _AGENT.sparse_min_features
+    sparse_capacity: int = _AGENT.sparse_capacity
+
+
+@dataclass
+class RewardSchema:
+    """:class:`frl.envs.RewardConfig`; ``conf/reward/*.yaml`` hold the named presets."""
+
+    name: str = _REWARD.name
+    alpha: float = _REWARD.alpha
+    beta: float = _REWARD.beta
+    gamma: float = _REWARD.gamma
+    undisturbed_bonus: float = _REWARD.undisturbed_bonus
+    lambda_: float = _REWARD.lambda_
+    mu: float = _REWARD.mu
+    disturbance_radius: float = _REWARD.disturbance_radius
+    moving_speed: float = _REWARD.moving_speed
+
+
+@dataclass
+class FederationSchema:
+    """The scheme (:class:`frl.federation.FederationPlan`) and how clients run."""
+
+    scheme: str = "fedavg"
+    """central | separate | fedavg."""
+    tasks: list[str] = field(default_factory=lambda: list(TASKS))
+    targets: str = "average"
+    """average: targets averaged too; resync: onlines averaged, then copied to targets."""
+    weighting: str = "equal"
+    """equal: Eq. (3); steps: weighted by the clients' steps in the round."""
+    backend: str = "processes"
+    """processes: one spawned worker process per client (one SUMO each)."""
+    worker_timeout_s: float = 3600.0
+    """Longest one worker call (a round of local training) may take before the run stops."""
+    threads_per_worker: int = 0
+    """Torch threads per worker; 0: the available cores split evenly over the workers."""
+
+
+@dataclass
+class TrainSchema:
+    """Root of ``conf/config.yaml``. Budget and cadence are root keys: ``interval=2000``."""
+
+    seed: int = 0
+    total_steps: int = 10_000
+    """Environment steps per agent (the paper's budget)."""
+    interval: int = 2_000
+    """Environment steps per client between aggregations (FedAvg) or checkpoints (all)."""
+    eval_episodes: int = 100
+    """Test episodes per task after training (Section IV.B); 0 skips evaluation."""
+    eval_arrival_period_steps: float = 10.0
+    """Test traffic: one human arrival per this many steps (Section IV.B: 10)."""
+    progress: bool = True
+    """Progress bar; always off in multirun."""
+    resume: Any = False
+    """false; true (the newest unfinished run under outputs/, or run_dir); or a run dir."""
+    device: str = "cpu"
+    run_dir: Any = None
+    """Where the run writes; null: Hydra's output directory."""
+    env: EnvSchema = field(default_factory=EnvSchema)
+    agent: AgentSchema = field(default_factory=AgentSchema)
+    federation: FederationSchema = field(default_factory=FederationSchema)
+    reward: RewardSchema = field(default_factory=RewardSchema)
+
+
+def register_configs() -> None:
+    """Put the schema into Hydra's ConfigStore (idempotent)."""
+    from hydra.core.config_store import ConfigStore
+
+    ConfigStore.instance().store(name="train_schema", node=TrainSchema)
+
+
+# ------------------------------------------------------------------- validation
+@dataclass(frozen=True)
+class TrainSettings:
+    """A validated configuration, as typed library objects."""
+
+    plan: FederationPlan
+    env: EnvConfig
+    reward: RewardConfig
+    agent: DDPGConfig
+    seed: int
+    eval_episodes: int
+    eval_arrival_period_steps: float
+    device: str
+    backend: str
+    worker_timeout_s: float | None
+    threads_per_worker: int | None
+
+    def eval_env(self, task: str) -> EnvConfig:
+        """The test environment of ``task``: test traffic density (Section IV.B)."""
+        scenario = dataclasses.replace(
+            self.env.scenario, human_arrival_period_steps=self.eval_arrival_period_steps
+        )
+        return dataclasses.replace(self.env, task=task, scenario=scenario)
+
+
+def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
+    """Check ``cfg`` and build the library configs; :class:`ConfigError` names the problem."""
+    data = _to_container(cfg)
+    unknown = sorted(set(data) - {f.name for f in dataclasses.fields(TrainSchema)})
+    if unknown:
+        raise ConfigError(f"unknown config key {unknown[0]!r}")
+    federation = data.get("federation", {})
+    reward = dict(data.get("reward", {}))
+    agent = dict(data.get("agent", {}))
+    env = dict(data.get("env", {}))
+
+    if federation.get("backend", "processes") not in BACKENDS:
+        raise ConfigError(
+            f"unknown federation.backend {federation.get('backend')!r}; "
+            f"choose one of {', '.join(BACKENDS)}"
+        )
+    if reward.get("name", "paper") not in REWARD_NAMES:
+        raise ConfigError(
+            f"unknown reward {reward.get('name')!r}; choose one of {', '.join(REWARD_NAMES)}"
+        )
+    if agent.pop("name", "ddpg") != "ddpg":
+        raise ConfigError("unknown agent; frl implements agent=ddpg only")
+    for key in ("eval_episodes",):
+        value = data.get(key, 0)
+        if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+            raise ConfigError(f"{key} must be a non-negative integer, got {value!r}")
+    timeout = federation.get("worker_timeout_s", 3600.0)
+    if timeout is not None and not timeout > 0:
+        raise ConfigError(f"federation.worker_timeout_s must be positive, got {timeout!r}")
+    threads = federation.get("threads_per_worker", 0)
+    if not isinstance(threads, int) or threads < 0:
+        raise ConfigError(f"federation.threads_per_worker must be >= 0, got {threads!r}")
+    try:
+        plan = FederationPlan(
+            scheme=federation.get("scheme", "fedavg"),
+            tasks=tuple(federation.get("tasks", TASKS)),
+            total_steps=data.get("total_steps", 10_000),
+            interval=data.get("interval", 2_000),
+            targets=federation.get("targets", "average"),
+            weighting=federation.get("weighting", "equal"),
+        )
+        scenario = ScenarioConfig(**env.pop("scenario", {}))
+        grid_fields = dict(env.pop("grid", {}))
+        for name in ("lateral_range", "longitudinal_range"):
+            if name in grid_fields:
+                grid_fields[name] = tuple(grid_fields[name])
+        env_config = EnvConfig(scenario=scenario, grid=GridConfig(**grid_fields), **env)
+        reward_config = RewardConfig(**reward)
+        agent_config = DDPGConfig.from_dict(agent)
+        period = float(data.get("eval_arrival_period_steps", 10.0))
+        ScenarioConfig(human_arrival_period_steps=period)  # range check
+    except (ValueError, TypeError) as error:
+        raise ConfigError(str(error)) from error
+    return TrainSettings(
+        plan=plan,
+        env=env_config,
+        reward=reward_config,
+        agent=agent_config,
+        seed=int(data.get("seed", 0)),
+        eval_episodes=int(data.get("eval_episodes", 100)),
+        eval_arrival_period_steps=period,
+        device=str(data.get("device", "cpu")),
+        backend=federation.get("backend", "processes"),
+        worker_timeout_s=timeout,
+        threads_per_worker=threads or None,
+    )
+
+
+def _to_container(cfg: DictConfig | TrainSchema | dict[str, Any]) -> dict[str, Any]:
+    if isinstance(cfg, DictConfig):
+        return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    if dataclasses.is_dataclass(cfg):
+        return OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)  # type: ignore[return-value]
+    return dict(cfg)
+
+
+def load_run_config(run_dir: str | Path) -> DictConfig:
+    """The resolved config a run saved (``RUN_DIR/config.yaml``), checked against the schema."""
+    path = Path(run_dir) / "config.yaml"
+    if not path.exists():
+        raise ConfigError(f"{run_dir} is not an frl run directory: it has no config.yaml")
+    schema = OmegaConf.structured(TrainSchema)
+    return OmegaConf.merge(schema, OmegaConf.load(path))  # type: ignore[return-value]

@@ -1,0 +1,154 @@
+"""A vehicle in-process, and a FedAvg round across vehicles in worker processes.
+
+The privacy test records every message that leaves a vehicle's process during training
+and a FedAvg round, and checks that the only tensors in them are model parameters.
+"""
+
+import dataclasses
+import pickle
+
+import numpy as np
+import pytest
+import torch
+from train_helpers import tiny_spec
+
+from frl.agents import is_target_key
+from frl.episodes import EpisodeRecord
+from frl.federation import LocalUpdate, ProcessClientPool, VehicleClient, fedavg
+
+
+@pytest.fixture(scope="module")
+def client():
+    vehicle = VehicleClient(tiny_spec(0, "left"))
+    yield vehicle
+    vehicle.close()
+
+
+def test_local_training_reports_steps_episodes_and_parameters(client):
+    update = client.train(70)
+
+    assert update.client == "client0_left"
+    assert update.num_steps == 70 and update.total_steps == 70
+    assert update.step_rewards.dtype == np.float32 and update.step_rewards.shape == (70,)
+    assert update.episodes, "30-step episodes: at least two end in 70 steps"
+    assert all(e.task == "left" and 1 <= e.steps <= 30 for e in update.episodes)
+    assert np.isfinite(update.losses["critic_loss"][-1])  # learning started at step 20
+    assert np.isnan(update.losses["critic_loss"][0])
+    assert set(update.parameters) == set(client.agent.federated_keys)
+    # The reported returns are the sums of the step rewards of each episode.
+    first = update.episodes[0]
+    assert first.episode_return == pytest.approx(float(update.step_rewards[: first.steps].sum()))
+
+
+def test_upload_options(client):
+    without_targets = client.train(5, include_targets=False).parameters
+    assert without_targets and not any(is_target_key(k) for k in without_targets)
+    assert client.train(5, upload=False).parameters is None
+
+
+def test_set_parameters_with_and_without_target_resync(client):
+    state = client.get_parameters()
+    online = {k: torch.full_like(v, 0.5) for k, v in state.items() if not is_target_key(k)}
+
+    client.set_parameters(online)
+    after = client.get_parameters()
+    assert all(torch.equal(after[k], online[k]) for k in online)
+    assert all(torch.equal(after[k], state[k]) for k in state if is_target_key(k))
+
+    client.set_parameters(online, sync_targets=True)
+    after = client.get_parameters()
+    assert all(torch.all(after[k] == 0.5) for k in after)
+    with pytest.raises(ValueError, match=r"unexpected parameter 'optimizer\.x'"):
+        client.set_parameters({**online, "optimizer.x": torch.zeros(1)})
+    with pytest.raises(ValueError, match="lacks"):
+        client.set_parameters({})
+
+
+def test_save_and_load_restore_the_agent(client, tmp_path):
+    client.save(tmp_path)
+    before = client.get_parameters()
+    steps = client.agent.num_env_steps
+    client.train(10)
+    client.load(tmp_path)
+    assert client.agent.num_env_steps == steps
+    after = client.get_parameters()
+    assert all(torch.equal(before[k], after[k]) for k in before)
+    client.train(3)  # resumes on a fresh simulation
+
+
+def test_evaluate_uses_the_deterministic_policy(client):
+    records = client.evaluate("right", [1, 3])
+    again = client.evaluate("right", [1, 3])
+    assert [r.task for r in records] == ["right", "right"]
+    assert records == again  # same seeds, no exploration: identical episodes
+
+
+# ------------------------------------------------------------ worker processes
+_ALLOWED_TYPES = (str, int, float, bool, type(None), np.floating, np.integer, np.bool_)
+
+
+def _audit(payload, federated_keys, path="message"):
+    """Every tensor must be a model parameter; arrays must be 1-D per-step scalars."""
+    if isinstance(payload, LocalUpdate):
+        if payload.parameters is not None:
+            assert set(payload.parameters) <= federated_keys
+            for key, tensor in payload.parameters.items():
+                assert isinstance(tensor, torch.Tensor), key
+        fields = {f.name: getattr(payload, f.name) for f in dataclasses.fields(payload)}
+        fields.pop("parameters")
+        _audit(fields, federated_keys, path)
+    elif isinstance(payload, torch.Tensor):
+        raise AssertionError(f"a tensor outside the model parameters at {path}")
+    elif isinstance(payload, np.ndarray):
+        assert payload.ndim == 1, f"{path}: only per-step scalar series may leave a vehicle"
+        assert payload.dtype == np.float32
+    elif isinstance(payload, dict) and payload and set(payload) <= federated_keys:
+        assert all(isinstance(v, torch.Tensor) for v in payload.values())  # get_parameters()
+    elif isinstance(payload, dict):
+        for key, value in payload.items():
+            assert isinstance(key, str)
+            lowered = key.lower()
+            assert not any(w in lowered for w in ("optim", "buffer", "noise", "obs")), key
+            _audit(value, federated_keys, f"{path}.{key}")
+    elif isinstance(payload, (list, tuple)):
+        for i, value in enumerate(payload):
+            _audit(value, federated_keys, f"{path}[{i}]")
+    elif isinstance(payload, EpisodeRecord):
+        _audit(payload.to_dict(), federated_keys, path)
+    else:
+        assert isinstance(payload, _ALLOWED_TYPES), f"{path}: {type(payload).__name__}"
+
+
+def test_a_fedavg_round_leaves_every_client_with_the_mean_and_only_parameters_leave():
+    specs = [tiny_spec(0, "left"), tiny_spec(1, "right")]
+    messages = []
+    with ProcessClientPool(specs, num_threads=1, on_message=lambda *m: messages.append(m)) as pool:
+        updates = pool.train(60, upload=True, include_targets=True, on_progress=lambda *_: None)
+        uploads = [u.parameters for u in updates]
+        first_layer = "actor.layers.0.weight"
+        assert not torch.equal(uploads[0][first_layer], uploads[1][first_layer])
+        global_model = fedavg(uploads)
+        pool.set_parameters(global_model, sync_targets=False)
+        held = pool.workers.call("get_parameters")
+        # Next round: clients continue from the global model.
+        pool.train(20, upload=False, include_targets=True)
+
+    for state in held:
+        assert set(state) == set(global_model)
+        for key, tensor in global_model.items():
+            assert torch.equal(state[key], tensor), key
+    key = "critic.layers.0.weight"
+    torch.testing.assert_close(global_model[key], (uploads[0][key] + uploads[1][key]) / 2)
+
+    kinds = {kind for _, kind, _ in messages}
+    assert kinds == {"ready", "progress", "ok"}
+    federated_keys = set(global_model)
+    for client, kind, payload in messages:
+        _audit(payload, federated_keys, f"{client}:{kind}")
+    # Byte budget: besides parameters, a round's messages carry only small scalars.
+    others = [
+        pickle.dumps(dataclasses.replace(p, parameters=None))
+        for _, _, p in messages
+        if isinstance(p, LocalUpdate)
+    ]
+    assert max(len(b) for b in others) < 10_000

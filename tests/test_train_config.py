@@ -1,0 +1,69 @@
+"""Bad configurations fail fast, with clear messages, before any process starts."""
+
+import multiprocessing
+import re
+
+import pytest
+from hydra.errors import ConfigCompositionException
+from omegaconf.errors import ValidationError
+from train_helpers import compose_config
+
+from frl.train import train
+from frl.train_config import ConfigError, validate
+
+
+def test_the_default_config_is_the_paper_setup():
+    settings = validate(compose_config(None))
+    default = validate(compose_config(None, []))
+    assert settings == default
+    cfg = compose_config(None, ["total_steps=10000", "interval=2000"])
+    plan = validate(cfg).plan
+    assert (plan.scheme, plan.num_rounds, plan.tasks) == (
+        "fedavg",
+        5,
+        ("left", "straight", "right"),
+    )
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["federation.scheme=fedsgd"], "unknown federation scheme 'fedsgd'"),
+        (["interval=0"], r"interval must be .* got 0"),
+        (["interval=-5"], "interval must be"),
+        (["interval=1000"], r"total_steps=240\], got 1000"),
+        (["federation.tasks=[left,uturn]"], "unknown task 'uturn'"),
+        (["reward.name=fancy"], "unknown reward 'fancy'"),
+        (["federation.backend=grpc"], "unknown federation.backend 'grpc'"),
+        (["agent.tau=2.0"], "tau must lie in"),
+        (["env.max_episode_steps=0"], "max_episode_steps"),
+        (["eval_episodes=-1"], "eval_episodes"),
+    ],
+)
+def test_bad_values_raise_config_error_before_any_process(overrides, message, tmp_path):
+    cfg = compose_config(tmp_path / "run", overrides)
+    with pytest.raises(ConfigError, match=message):
+        train(cfg)
+    assert multiprocessing.active_children() == []
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["interval=abc"], "could not be converted to Integer"),
+        (["agent.lrr=1"], "Key 'lrr' not in 'AgentSchema'"),
+        (["federation=bogus"], "federation/bogus"),
+        (["reward=bogus"], "reward/bogus"),
+    ],
+)
+def test_typos_and_wrong_types_fail_while_composing(overrides, message):
+    with pytest.raises((ConfigCompositionException, ValidationError)) as info:
+        compose_config(None, overrides)
+    assert re.search(message, f"{info.value} {info.value.__cause__}")
+
+
+def test_resume_needs_a_run(tmp_path):
+    cfg = compose_config(tmp_path / "run", [f"resume={tmp_path / 'nothing'}"])
+    with pytest.raises(ConfigError, match="no checkpointed run there"):
+        train(cfg)

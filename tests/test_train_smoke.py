@@ -1,0 +1,162 @@
+"""``train(cfg)`` end to end for each scheme on tiny networks, in-process, plus resume
+after a kill, a worker killed mid-run, and one subprocess multirun."""
+
+import json
+import multiprocessing
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from train_helpers import compose_config
+
+from frl.federation import ClientFailure
+from frl.train import train
+
+RESULT_KEYS = {
+    "scheme", "seed", "interval", "total_steps", "tasks", "clients", "rounds",
+    "communication", "training", "evaluation", "versions", "run_dir",
+}  # fmt: skip
+COMMUNICATION_KEYS = {
+    "aggregation", "targets", "bytes_per_upload", "bytes_per_download", "uploads",
+    "downloads", "total_bytes_up", "total_bytes_down", "total_bytes",
+}  # fmt: skip
+METRIC_KEYS = {
+    "average_reward", "collision_rate", "arrival_rate", "timeout_rate",
+    "average_travel_time", "average_episode_steps", "episodes",
+}  # fmt: skip
+
+
+def _scalar_tags(run_dir: Path) -> dict[str, list]:
+    accumulator = EventAccumulator(str(run_dir / "tb"), size_guidance={"scalars": 0})
+    accumulator.Reload()
+    return {tag: accumulator.Scalars(tag) for tag in accumulator.Tags()["scalars"]}
+
+
+@pytest.mark.parametrize("scheme", ["central", "separate", "fedavg"])
+def test_each_scheme_trains_logs_and_tests(scheme, tmp_path):
+    cfg = compose_config(tmp_path / "run", [f"federation={scheme}"])
+
+    results = train(cfg)
+
+    run_dir = tmp_path / "run"
+    saved = json.loads((run_dir / "results.json").read_text())
+    assert saved == json.loads(json.dumps(results))
+    assert set(saved) >= RESULT_KEYS
+    assert saved["rounds"] == 3 and saved["training"]["steps_per_client"] == 240
+    clients = ["client0_random"] if scheme == "central" else [
+        "client0_left", "client1_straight", "client2_right"
+    ]  # fmt: skip
+    assert saved["clients"] == clients
+    assert all(saved["training"]["episodes"][c] >= 1 for c in clients)
+    communication = saved["communication"]
+    assert set(communication) == COMMUNICATION_KEYS
+    if scheme == "fedavg":
+        assert communication["uploads"] == 3 * 3
+        assert communication["bytes_per_upload"] > 0
+        assert communication["total_bytes_up"] == 9 * communication["bytes_per_upload"]
+        assert communication["total_bytes_down"] == 9 * communication["bytes_per_download"]
+    else:
+        assert communication["total_bytes"] == 0
+    evaluation = saved["evaluation"]
+    assert set(evaluation["per_task"]) == {"left", "straight", "right"}
+    for metrics in [*evaluation["per_task"].values(), evaluation["average"]]:
+        assert set(metrics) == METRIC_KEYS
+    assert evaluation["per_task"]["left"]["episodes"] == 2
+    assert "travel_time_definition" in evaluation
+    assert {"frl", "torch", "sumo", "python"} <= set(saved["versions"])
+
+    for name in ("config.yaml", "versions.json", "state.json", "models/index.json"):
+        assert (run_dir / name).exists(), name
+    assert not any((run_dir / "checkpoints").iterdir())  # buffers dropped once models exist
+
+    tags = _scalar_tags(run_dir)
+    assert len(tags["train/step_reward"]) == 240
+    assert [e.step for e in tags["server/round"]] == [80, 160, 240]
+    for tag in ("server/bytes_up", "server/bytes_down", "server/bytes_total"):
+        assert tag in tags
+    for client in clients:
+        for name in ("episode_return", "episode_collision", "episode_travel_time_steps"):
+            assert f"{client}/{name}" in tags
+        assert f"{client}/critic_loss" in tags and f"{client}/actor_loss" in tags
+    for group in ("left", "straight", "right", "average"):
+        assert f"eval/{group}/average_reward" in tags
+        assert f"eval/{group}/collision_rate" in tags
+    hparams = EventAccumulator(str(run_dir / "tb"))
+    hparams.Reload()
+    assert "_hparams_/experiment" in hparams.PluginTagToContent("hparams")
+
+
+class _Killed(Exception):
+    pass
+
+
+def test_resume_after_a_kill_finishes_the_budget(tmp_path):
+    overrides = ["federation=fedavg", "federation.tasks=[left,right]", "eval_episodes=0"]
+    cfg = compose_config(tmp_path / "run", overrides)
+
+    def kill_after_round(state):
+        if state.completed_rounds == 2:
+            raise _Killed
+
+    with pytest.raises(_Killed):
+        train(cfg, on_round_end=kill_after_round)
+    assert multiprocessing.active_children() == []
+    state = json.loads((tmp_path / "run" / "state.json").read_text())
+    assert state["completed_rounds"] == 2 and not state["training_finished"]
+
+    rounds_seen = []
+    results = train(
+        compose_config(tmp_path / "run", [*overrides, "resume=true"]),
+        on_round_end=lambda s: rounds_seen.append(s.completed_rounds),
+    )
+
+    assert rounds_seen == [3]  # only the missing round ran
+    assert results["rounds"] == 3
+    assert results["training"]["steps_per_client"] == 240
+    assert results["communication"]["uploads"] == 2 * 3
+    assert len(np.load(tmp_path / "run" / "step_rewards.npy")) == 240
+    assert [e.step for e in _scalar_tags(tmp_path / "run")["server/round"]] == [80, 160, 240]
+
+
+def test_a_worker_killed_mid_run_stops_the_run_naming_the_client(tmp_path):
+    cfg = compose_config(tmp_path / "run", ["federation=separate", "federation.tasks=[left,right]"])
+
+    def kill_a_worker(state):
+        victim = next(p for p in multiprocessing.active_children() if "client1_right" in p.name)
+        os.kill(victim.pid, signal.SIGKILL)
+
+    with pytest.raises(ClientFailure, match="client client1_right failed") as info:
+        train(cfg, on_round_end=kill_a_worker)
+    assert "SIGKILL" in str(info.value)
+    assert multiprocessing.active_children() == []
+
+
+def test_multirun_over_two_seeds_in_a_subprocess(tmp_path):
+    sweep = tmp_path / "sweep"
+    overrides = [
+        o for o in compose_config.__globals__["TINY_OVERRIDES"] if not o.startswith("progress")
+    ]
+    command = [
+        sys.executable, "-m", "frl.train", "-m", "seed=0,1",
+        "federation=central", "federation.tasks=[left]", *overrides, "eval_episodes=0",
+        f"hydra.sweep.dir={sweep}",
+    ]  # fmt: skip
+    env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
+    done = subprocess.run(
+        command, cwd=Path(__file__).resolve().parents[1], env=env,
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and (p / "results.json").exists())
+    assert len(jobs) == 2
+    seeds = [json.loads((job / "results.json").read_text())["seed"] for job in jobs]
+    assert sorted(seeds) == [0, 1]
+    for job in jobs:
+        assert (job / ".hydra" / "config.yaml").exists()
+        assert any((job / "tb").iterdir())
+    assert "step/s" not in done.stderr  # no progress bar in multirun

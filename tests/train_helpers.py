@@ -1,0 +1,52 @@
+"""Tiny training configs for the federation and train tests (not a test module)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+
+from frl.agents import DDPGConfig
+from frl.envs import EnvConfig, RewardConfig
+from frl.federation import ClientSpec
+from frl.train_config import register_configs
+
+CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
+
+TINY_OVERRIDES = [
+    "total_steps=240",
+    "interval=80",
+    "agent.hidden_sizes=[16,16]",
+    "agent.batch_size=16",
+    "agent.learning_starts=40",
+    "agent.buffer_size=1000",
+    "env.max_episode_steps=50",
+    "env.warmup_steps=10",
+    "eval_episodes=2",
+    "progress=false",
+]
+"""3 rounds of 80 steps per client, episodes of at most 50 steps: every client crosses
+at least one episode end and two aggregations."""
+
+TINY_AGENT = DDPGConfig(hidden_sizes=(16, 16), batch_size=16, learning_starts=20, buffer_size=500)
+TINY_ENV = EnvConfig(max_episode_steps=30, warmup_steps=10)
+
+
+def compose_config(run_dir: Path | None, overrides: list[str] = ()):  # type: ignore[assignment]
+    """The composed Hydra config with the tiny overrides, writing into ``run_dir``."""
+    register_configs()
+    extra = [f"run_dir={run_dir}"] if run_dir is not None else []
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return compose("config", overrides=[*TINY_OVERRIDES, *extra, *overrides])
+
+
+def tiny_spec(index: int, task: str, seed: int = 0) -> ClientSpec:
+    return ClientSpec(
+        index=index,
+        task=task,
+        env=TINY_ENV,
+        reward=RewardConfig(),
+        agent=TINY_AGENT,
+        agent_seed=seed + index,
+        env_seed=2 * (seed + index),
+    )
