@@ -70,11 +70,15 @@ class SparseRows(NamedTuple):
 class _SparseMatmul(torch.autograd.Function):
     """``rows @ weight_t`` for compressed rows; differentiable in ``weight_t`` only.
 
-    Forward is ``F.embedding_bag`` (mode ``sum`` with per-sample weights). Backward
-    scatters ``values * grad_out[row]`` into the rows of the gradient with one
-    ``index_add_``: the same sum as ``embedding_bag``'s own backward, which sorts the
-    indices first and was 2-3x slower here (1404 x 512 table, batch 256, ~20 non-zeros).
-    Input values get no gradient (observations never need one).
+    Forward is ``F.embedding_bag`` (mode ``sum`` with per-sample weights). The weight
+    gradient ``rows^T @ grad_out`` is the same kind of gather-and-sum seen from the other
+    side: feature ``f``'s gradient row sums ``value * grad_out[row]`` over the non-zeros at
+    ``f``. So backward regroups the non-zeros by feature (a stable sort) and runs one more
+    forward ``embedding_bag`` over the rows of ``grad_out``. Measured on the 2-core machine
+    (1404 x 512 table, batch 256, ~18 non-zeros a row, inside a DDPG update): about 5 ms
+    less per update than ``index_select`` + ``index_add_``, whose 9.6 MB intermediate was
+    slow to fill; ``embedding_bag``'s own backward was slower still. Input values get no
+    gradient (observations never need one).
     """
 
     @staticmethod
@@ -92,9 +96,18 @@ class _SparseMatmul(torch.autograd.Function):
         indices, values, offsets = ctx.saved_tensors
         counts = torch.diff(offsets, append=offsets.new_tensor([indices.numel()]))
         rows = torch.repeat_interleave(torch.arange(offsets.numel(), device=counts.device), counts)
-        contributions = grad_out.index_select(0, rows).mul_(values.unsqueeze(1))
-        grad_table = grad_out.new_zeros(ctx.table_shape)
-        return None, None, None, grad_table.index_add_(0, indices, contributions)
+        by_feature = torch.argsort(indices, stable=True)  # stable: a fixed summation order
+        per_feature = torch.bincount(indices, minlength=ctx.table_shape[0])
+        feature_offsets = torch.cumsum(per_feature, 0) - per_feature
+        # Features no row holds form empty bags, which embedding_bag sums to zero rows.
+        grad_table = F.embedding_bag(
+            rows[by_feature],
+            grad_out.contiguous(),
+            feature_offsets,
+            mode="sum",
+            per_sample_weights=values[by_feature],
+        )
+        return None, None, None, grad_table
 
 
 class InputLinear(nn.Module):
