@@ -106,10 +106,10 @@ def fmt(estimate: Estimate | None, digits: int = 2, percent: bool = False) -> st
     if estimate is None or estimate.n == 0 or not np.isfinite(estimate.mean):
         return "–"
     scale, unit = (100.0, "%") if percent else (1.0, "")
-    mean = f"{estimate.mean * scale:.{digits}f}{unit}"
+    mean = f"{estimate.mean * scale:.{digits}f}"
     if estimate.half_width is None:
-        return f"{mean} (n=1)"
-    return f"{mean} ± {estimate.half_width * scale:.{digits}f}"
+        return f"{mean}{unit} (n=1)"
+    return f"{mean} ± {estimate.half_width * scale:.{digits}f}{unit}"
 
 
 def table(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:

@@ -126,6 +126,8 @@ def plot_fig6(points: list[IntervalPoint], settings: CurveSettings, path: Path) 
         color="tab:green",
         label=f"training reward at the end (last {settings.episode_window} episodes)",
     )
+    half = np.array([_err(p.final_reward) for p in points])
+    axis.fill_between(intervals, final - half, final + half, color="tab:green", alpha=0.15)
     test = np.array([_val(p.test_reward) for p in points])
     if np.isfinite(test).any():
         axis.errorbar(
