@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from train_helpers import TINY_OVERRIDES, compose_config
 
+from frl.federation.tensorboard import TrainingLogger
 from frl.report.runs import export_run, is_finished, load_run
 from frl.train import train
 
@@ -33,6 +34,9 @@ class _Killed(Exception):
 def test_auto_resumes_a_killed_run_skips_a_finished_one_and_the_report_reads_it(tmp_path):
     run_dir = tmp_path / "fig4" / "central-seed0"
     cfg = compose_config(run_dir, ONE_CLIENT)
+    with TrainingLogger(run_dir / "tb") as stale:  # a session killed before its first commit
+        for step in range(1, 6):
+            stale.writer.add_scalar("train/step_reward", 99.0, step)
 
     def kill_after_first_round(state):
         if state.completed_rounds == 1:
@@ -53,7 +57,8 @@ def test_auto_resumes_a_killed_run_skips_a_finished_one_and_the_report_reads_it(
 
     run = load_run(run_dir)
     np.testing.assert_allclose(run.step_rewards, np.load(run_dir / "step_rewards.npy"), rtol=1e-6)
-    assert run.step_rewards.size == 160  # the killed session's events purged, not doubled
+    assert run.step_rewards.size == 160  # the killed sessions' events purged, not doubled
+    assert 99.0 not in run.step_rewards
     (client,) = run.episodes
     assert client == "client0_random"
     assert run.episodes[client].end_step.size == results["training"]["episodes"][client]

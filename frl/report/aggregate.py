@@ -62,7 +62,17 @@ def reward_curve(run: RunRecord, window: int) -> np.ndarray:
 
 
 def step_reward_curve(run: RunRecord, window: int) -> np.ndarray:
+    """``train/step_reward``, trailing ``window``-step moving average."""
+    if run.step_rewards.size == 0:
+        return np.zeros(0)
     return _moving_average(run.step_rewards, window)
+
+
+def _padded(curve: np.ndarray, length: int) -> np.ndarray:
+    """``curve`` cut or NaN-padded to ``length`` (a run whose curve is missing or short)."""
+    out = np.full(length, np.nan)
+    out[: min(length, curve.size)] = curve[:length]
+    return out
 
 
 @dataclass
@@ -88,9 +98,11 @@ class SchemeCurves:
 def scheme_curves(runs: list[RunRecord], settings: CurveSettings) -> SchemeCurves:
     """Fig. 4 for one scheme: curves, bands, threshold steps and final rewards."""
     runs = sorted(runs, key=lambda r: r.seed)
-    length = min(min(r.total_steps for r in runs), min(r.step_rewards.size for r in runs))
+    length = min(r.total_steps for r in runs)
     rewards = np.stack([reward_curve(r, settings.episode_window)[:length] for r in runs])
-    steps_smoothed = np.stack([step_reward_curve(r, settings.step_window)[:length] for r in runs])
+    steps_smoothed = np.stack(
+        [_padded(step_reward_curve(r, settings.step_window), length) for r in runs]
+    )
     reward_mean, reward_half = band(rewards)
     step_mean, step_half = band(steps_smoothed)
     crossings = [first_crossing(curve, settings.threshold) for curve in rewards]
