@@ -5,6 +5,7 @@
     python -m frl.train -m federation=central,separate,fedavg seed=0,1,2
     python -m frl.train +experiment=quick                 # about a minute
     python -m frl.train resume=true                       # continue the newest killed run
+    python -m frl.train -m +experiment=fig4               # resume=auto: skip finished jobs
 
 :func:`train` is the testable entry point (it takes a composed config); :func:`main` is
 the thin Hydra wrapper. docs/training.md describes the run directory, the TensorBoard
@@ -97,6 +98,9 @@ def train(cfg: DictConfig, on_round_end: RoundHook | None = None) -> dict[str, A
     job_started = time.perf_counter()
     settings = validate(cfg)
     run_dir, resuming = _resolve_run_dir(cfg)
+    if resuming and _is_auto(cfg) and _finished(run_dir):
+        log.info("skipping %s: the run there has finished (resume=auto)", run_dir)
+        return read_json(run_dir / RESULTS_FILE)
     if resuming:
         saved = load_run_config(run_dir)
         _warn_about_changes(saved, cfg)
@@ -126,7 +130,9 @@ def train(cfg: DictConfig, on_round_end: RoundHook | None = None) -> dict[str, A
     plan = settings.plan
     if not state.training_finished:
         specs = build_client_specs(settings)
-        purge_step = state.steps_per_client + 1 if state.steps_per_client else None
+        # A fresh start over a killed session's uncommitted events (resume=auto) drops them.
+        stale_events = (run_dir / TB_DIR).exists()
+        purge_step = state.steps_per_client + 1 if state.steps_per_client or stale_events else None
         with (
             TrainingLogger(run_dir / TB_DIR, purge_step=purge_step) as logger,
             ProcessClientPool(
@@ -279,11 +285,32 @@ def _resumable(run_dir: Path) -> bool:
     return not (results.exists() and "evaluation" in read_json(results))
 
 
+def _is_auto(cfg: Any) -> bool:
+    resume = _get(cfg, "resume", False)
+    return isinstance(resume, str) and resume.lower() == "auto"
+
+
+def _finished(run_dir: Path) -> bool:
+    """Training and any configured evaluation of the run in ``run_dir`` are done."""
+    state_path = run_dir / STATE_FILE
+    return (
+        state_path.exists()
+        and bool(read_json(state_path).get("training_finished"))
+        and (run_dir / RESULTS_FILE).exists()
+        and not _resumable(run_dir)
+    )
+
+
 def _resolve_run_dir(cfg: Any) -> tuple[Path, bool]:
-    """The directory to write into, and whether it holds a run to resume."""
+    """The directory to write into, and whether it holds a run to resume (or skip)."""
     resume = _get(cfg, "resume", False)
     configured = _get(cfg, "run_dir")
-    if isinstance(resume, str) and resume.lower() not in ("true", "false"):
+    if _is_auto(cfg):  # deterministic sweep dirs: continue, skip or start the run there
+        run_dir = Path(configured) if configured else _hydra_output_dir()
+        if run_dir is None:
+            raise ConfigError("run_dir must be set when train() runs outside Hydra")
+        return run_dir, (run_dir / STATE_FILE).exists() and (run_dir / CONFIG_FILE).exists()
+    if isinstance(resume, str) and resume.lower() not in ("true", "false", "auto"):
         run_dir = Path(resume).expanduser()
         if not (run_dir / STATE_FILE).exists():
             raise ConfigError(f"resume={resume}: no checkpointed run there (no {STATE_FILE})")

@@ -152,7 +152,8 @@ class TrainSchema:
     progress: bool = True
     """Progress bar; always off in multirun."""
     resume: Any = False
-    """false; true (the newest unfinished run under outputs/, or run_dir); or a run dir."""
+    """false; true (the newest unfinished run under outputs/, or run_dir); a run dir; or
+    auto (the run in run_dir: continued if unfinished, skipped if finished, else started)."""
     device: str = "cpu"
     run_dir: Any = None
     """Where the run writes; null: Hydra's output directory."""

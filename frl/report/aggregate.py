@@ -1,0 +1,299 @@
+"""Per-figure summaries over seeds: the numbers the tables and plots of the report show.
+
+Training curves. The paper's Fig. 4 "average reward" reaches 6-7, the scale of an
+episode *return* (docs/scenario.md: a clean pass scores about 6.7), not of one step's
+reward (about 0.15). The paper trains with Stable-Baselines3, whose logged
+``rollout/ep_rew_mean`` is the mean return of the last 100 episodes; for Sep- and
+FedAvg-DDPG it averages the three agents' curves. :func:`reward_curve` is that curve,
+per step, from each client's training episodes. The per-step ``train/step_reward``
+(moving average) is shown beside it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from frl.report.collect import Collection
+from frl.report.runs import RunRecord
+from frl.report.stats import Estimate, band, episode_return_curve, first_crossing, mean_ci
+from frl.report.stats import moving_average as _moving_average
+
+SCHEMES: tuple[str, ...] = ("central", "separate", "fedavg")
+SCHEME_LABELS = {"central": "Central-DDPG", "separate": "Sep-DDPG", "fedavg": "FedAvg-DDPG"}
+TASKS: tuple[str, ...] = ("left", "straight", "right")
+PAPER_INTERVAL = 2000
+PAPER_REWARD = {"name": "paper", "alpha": -0.05, "lambda_": -10.0}
+FIG3_SETTINGS: tuple[tuple[str, float, float], ...] = (
+    ("paper", -0.005, -1.0),
+    ("paper", -0.005, -10.0),
+    ("paper", -0.05, -1.0),
+    ("paper", -0.05, -10.0),
+    ("reference", -0.01, -1.0),
+)
+"""(name, alpha, lambda) of Fig. 3: the alpha x lambda grid and the reference reward."""
+
+
+@dataclass(frozen=True)
+class CurveSettings:
+    """How training curves are smoothed and thresholded (stated in the report)."""
+
+    episode_window: int = 100
+    """Episodes in the trailing mean of returns (SB3's ``ep_rew_mean`` window)."""
+    step_window: int = 500
+    """Steps in the moving average of ``train/step_reward``."""
+    threshold: float = 6.0
+    """The paper's Fig. 4 benchmark reward."""
+
+
+# ------------------------------------------------------------------- curves
+def reward_curve(run: RunRecord, window: int) -> np.ndarray:
+    """Mean over clients of each client's trailing ``window``-episode mean return, at
+    steps 1..total_steps; NaN until every client has finished an episode."""
+    if not run.episodes:
+        return np.full(run.total_steps, np.nan)
+    curves = [
+        episode_return_curve(ep.end_step, ep.returns, run.total_steps, window)
+        for ep in run.episodes.values()
+    ]
+    return np.mean(np.stack(curves), axis=0)
+
+
+def step_reward_curve(run: RunRecord, window: int) -> np.ndarray:
+    """``train/step_reward``, trailing ``window``-step moving average."""
+    if run.step_rewards.size == 0:
+        return np.zeros(0)
+    return _moving_average(run.step_rewards, window)
+
+
+def _padded(curve: np.ndarray, length: int) -> np.ndarray:
+    """``curve`` cut or NaN-padded to ``length`` (a run whose curve is missing or short)."""
+    out = np.full(length, np.nan)
+    out[: min(length, curve.size)] = curve[:length]
+    return out
+
+
+@dataclass
+class SchemeCurves:
+    """One scheme's Fig. 4 numbers over its seeds."""
+
+    scheme: str
+    seeds: list[int]
+    steps: np.ndarray
+    reward_mean: np.ndarray
+    reward_half: np.ndarray
+    step_mean: np.ndarray
+    step_half: np.ndarray
+    crossings: list[int | None]
+    """Per seed: first step the reward curve reaches the threshold."""
+    crossing: Estimate | None
+    """Over the seeds that crossed."""
+    mean_curve_crossing: int | None
+    final_reward: Estimate
+    final_step_reward: Estimate | None
+
+
+def scheme_curves(runs: list[RunRecord], settings: CurveSettings) -> SchemeCurves:
+    """Fig. 4 for one scheme: curves, bands, threshold steps and final rewards."""
+    runs = sorted(runs, key=lambda r: r.seed)
+    length = min(r.total_steps for r in runs)
+    rewards = np.stack([reward_curve(r, settings.episode_window)[:length] for r in runs])
+    steps_smoothed = np.stack(
+        [_padded(step_reward_curve(r, settings.step_window), length) for r in runs]
+    )
+    reward_mean, reward_half = band(rewards)
+    step_mean, step_half = band(steps_smoothed)
+    crossings = [first_crossing(curve, settings.threshold) for curve in rewards]
+    crossed = [c for c in crossings if c is not None]
+    finals = [float(curve[-1]) for curve in rewards if np.isfinite(curve[-1])]
+    final_steps = [r.results["training"].get("final_step_reward") for r in runs]
+    final_steps = [v for v in final_steps if v is not None]
+    return SchemeCurves(
+        scheme=runs[0].scheme,
+        seeds=[r.seed for r in runs],
+        steps=np.arange(1, length + 1),
+        reward_mean=reward_mean,
+        reward_half=reward_half,
+        step_mean=step_mean,
+        step_half=step_half,
+        crossings=crossings,
+        crossing=mean_ci(crossed) if crossed else None,
+        mean_curve_crossing=first_crossing(reward_mean, settings.threshold),
+        final_reward=mean_ci(finals) if finals else Estimate(float("nan"), None, 0),
+        final_step_reward=mean_ci(final_steps) if final_steps else None,
+    )
+
+
+def fig4(collection: Collection, settings: CurveSettings) -> dict[str, SchemeCurves]:
+    """Per scheme present in ``fig4/``."""
+    by_scheme = _group(collection.of("fig4"), lambda r: r.scheme)
+    return {s: scheme_curves(by_scheme[s], settings) for s in SCHEMES if s in by_scheme}
+
+
+# ---------------------------------------------------------------- test tables
+EVAL_METRICS: tuple[str, ...] = (
+    "average_reward",
+    "collision_rate",
+    "average_episode_steps",
+    "average_travel_time",
+)
+
+
+@dataclass
+class EvalSummary:
+    """Test metrics over seeds: ``metrics[task][metric]``, task ``average`` included."""
+
+    seeds: list[int]
+    metrics: dict[str, dict[str, Estimate | None]] = field(default_factory=dict)
+
+
+def eval_summary(runs: list[RunRecord]) -> EvalSummary | None:
+    """Estimates of every test metric over the runs that were evaluated."""
+    evaluated = sorted((r for r in runs if r.evaluation), key=lambda r: r.seed)
+    if not evaluated:
+        return None
+    summary = EvalSummary(seeds=[r.seed for r in evaluated])
+    for task in (*TASKS, "average"):
+        rows = [_task_metrics(r.evaluation, task) for r in evaluated]  # type: ignore[arg-type]
+        if all(row is None for row in rows):
+            continue
+        summary.metrics[task] = {
+            metric: _estimate([row.get(metric) for row in rows if row]) for metric in EVAL_METRICS
+        }
+    return summary
+
+
+def fig5(collection: Collection) -> dict[str, EvalSummary]:
+    by_scheme = _group(collection.of("fig4"), lambda r: r.scheme)
+    summaries = {s: eval_summary(by_scheme[s]) for s in SCHEMES if s in by_scheme}
+    return {s: v for s, v in summaries.items() if v is not None}
+
+
+# --------------------------------------------------------------------- Fig. 6
+@dataclass
+class IntervalPoint:
+    interval: int
+    seeds: list[int]
+    borrowed: bool
+    """Its runs come from fig4/ (FedAvg at the paper's interval)."""
+    final_reward: Estimate
+    test_reward: Estimate | None
+    total_bytes: Estimate | None
+
+
+def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]:
+    """FedAvg per interval: fig6/ runs, plus fig4/'s FedAvg runs for the interval(s)
+    fig6/ does not hold."""
+    own = _group([r for r in collection.of("fig6") if r.scheme == "fedavg"], lambda r: r.interval)
+    borrowed = _group(
+        [r for r in collection.of("fig4") if r.scheme == "fedavg" and _is_paper_reward(r)],
+        lambda r: r.interval,
+    )
+    points = []
+    for interval in sorted(set(own) | set(borrowed)):
+        runs = own.get(interval) or borrowed[interval]
+        runs = sorted(runs, key=lambda r: r.seed)
+        finals = [float(reward_curve(r, settings.episode_window)[-1]) for r in runs]
+        finals = [v for v in finals if np.isfinite(v)]
+        tests = [r.evaluation["average"]["average_reward"] for r in runs if r.evaluation]
+        total_bytes = [r.results["communication"].get("total_bytes") for r in runs]
+        points.append(
+            IntervalPoint(
+                interval=interval,
+                seeds=[r.seed for r in runs],
+                borrowed=interval not in own,
+                final_reward=mean_ci(finals) if finals else Estimate(float("nan"), None, 0),
+                test_reward=_estimate(tests),
+                total_bytes=_estimate(total_bytes),
+            )
+        )
+    return points
+
+
+# --------------------------------------------------------------------- Fig. 3
+@dataclass
+class RewardPoint:
+    name: str
+    alpha: float
+    lambda_: float
+    scheme: str
+    seeds: list[int]
+    borrowed: bool
+    summary: EvalSummary | None
+
+    @property
+    def label(self) -> str:
+        if self.name == "reference":
+            return "reference [22]"
+        return f"α={self.alpha:g}, λ={self.lambda_:g}"
+
+
+def fig3(collection: Collection) -> list[RewardPoint]:
+    """Per reward setting: fig3/ runs, plus fig4/'s runs of the same scheme with the
+    paper reward for that setting when fig3/ does not hold it."""
+    own = collection.of("fig3")
+    schemes = {r.scheme for r in own}
+    borrowed = [r for r in collection.of("fig4") if r.scheme in schemes and _is_paper_reward(r)]
+    own_groups = _group(own, _reward_key)
+    borrowed_groups = _group(borrowed, _reward_key)
+    points = []
+    keys = sorted(set(own_groups) | set(borrowed_groups), key=_fig3_order)
+    for key in keys:
+        runs = own_groups.get(key) or borrowed_groups[key]
+        points.append(
+            RewardPoint(
+                name=key[0],
+                alpha=key[1],
+                lambda_=key[2],
+                scheme=", ".join(sorted({r.scheme for r in runs})),
+                seeds=sorted(r.seed for r in runs),
+                borrowed=key not in own_groups,
+                summary=eval_summary(runs),
+            )
+        )
+    return points
+
+
+# ------------------------------------------------------------------ helpers
+def _group(runs: list[RunRecord], key: Any) -> dict[Any, list[RunRecord]]:
+    groups: dict[Any, list[RunRecord]] = {}
+    for run in runs:
+        groups.setdefault(key(run), []).append(run)
+    return groups
+
+
+def _reward_key(run: RunRecord) -> tuple[str, float, float]:
+    reward = run.reward
+    return (
+        str(reward.get("name", "paper")),
+        float(reward.get("alpha", PAPER_REWARD["alpha"])),
+        float(reward.get("lambda_", PAPER_REWARD["lambda_"])),
+    )
+
+
+def _is_paper_reward(run: RunRecord) -> bool:
+    return _reward_key(run) == (
+        PAPER_REWARD["name"],
+        PAPER_REWARD["alpha"],
+        PAPER_REWARD["lambda_"],
+    )
+
+
+def _fig3_order(key: tuple[str, float, float]) -> tuple[int, tuple[str, float, float]]:
+    for index, (name, alpha, lam) in enumerate(FIG3_SETTINGS):
+        if key[0] == name and np.isclose(key[1], alpha) and np.isclose(key[2], lam):
+            return index, key
+    return len(FIG3_SETTINGS), key
+
+
+def _task_metrics(evaluation: dict[str, Any], task: str) -> dict[str, Any] | None:
+    if task == "average":
+        return evaluation.get("average")
+    return evaluation.get("per_task", {}).get(task)
+
+
+def _estimate(values: list[Any]) -> Estimate | None:
+    numbers = [float(v) for v in values if v is not None]
+    return mean_ci(numbers) if numbers else None

@@ -1,0 +1,101 @@
+"""Find the runs of each figure under a reproduction root (run or data directories).
+
+The layout, made by ``python -m frl.reproduce`` (run directories) and by its export
+(data directories), is the same for both::
+
+    ROOT/fig4/{central,separate,fedavg}-seed{k}/    Figs. 4 and 5
+    ROOT/fig6/interval{N}-seed{k}/                  Fig. 6 (interval 2000: fig4's fedavg runs)
+    ROOT/fig3/{reward}-seed{k}/                     Fig. 3 (the paper reward: fig4's runs of
+                                                    the tuning scheme)
+
+Runs are grouped by what their ``results.json`` and ``config.yaml`` say, not by their
+directory names, so a user's own sweep laid out this way is read the same way.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from frl.report.runs import (
+    CONFIG_FILE,
+    RESULTS_FILE,
+    STATE_FILE,
+    RunDataError,
+    RunRecord,
+    is_finished,
+    load_run,
+)
+
+FIGURE_DIRS: tuple[str, ...] = ("fig4", "fig6", "fig3")
+"""Sweep directories; Fig. 5 is read from fig4's runs."""
+FIGURES: tuple[str, ...] = ("fig3", "fig4", "fig5", "fig6")
+
+
+@dataclass
+class Collection:
+    """Finished runs per sweep directory, and the unfinished ones seen (by path)."""
+
+    root: Path
+    runs: dict[str, list[RunRecord]] = field(default_factory=dict)
+    unfinished: dict[str, list[Path]] = field(default_factory=dict)
+
+    def of(self, sweep: str) -> list[RunRecord]:
+        return self.runs.get(sweep, [])
+
+    @property
+    def count(self) -> int:
+        return sum(len(runs) for runs in self.runs.values())
+
+
+def check_root(root: str | os.PathLike[str]) -> Path:
+    """``root`` as a Path if it holds at least one run; :class:`RunDataError` otherwise."""
+    root = Path(root)
+    if not root.is_dir():
+        raise RunDataError(f"{root}: no such directory")
+    found = [d for sweep in FIGURE_DIRS for d in _run_dirs(root / sweep)]
+    if not found:
+        raise RunDataError(
+            f"{root}: no runs found; expected run or data directories under "
+            f"{', '.join(f'{root}/{s}/' for s in FIGURE_DIRS)} (each with {RESULTS_FILE} "
+            f"or {STATE_FILE})"
+        )
+    return root
+
+
+def collect(root: str | os.PathLike[str]) -> Collection:
+    """Load every finished run under ``root``'s sweep directories."""
+    root = check_root(root)
+    collection = Collection(root)
+    for sweep in FIGURE_DIRS:
+        for run_dir in _run_dirs(root / sweep):
+            if _is_data_dir(run_dir) or is_finished(run_dir):
+                collection.runs.setdefault(sweep, []).append(load_run(run_dir))
+            else:
+                collection.unfinished.setdefault(sweep, []).append(run_dir)
+    if collection.count == 0:
+        names = ", ".join(str(p) for paths in collection.unfinished.values() for p in paths)
+        raise RunDataError(f"{root}: no finished run yet (unfinished: {names})")
+    return collection
+
+
+def _run_dirs(sweep_dir: Path) -> list[Path]:
+    if not sweep_dir.is_dir():
+        return []
+    return sorted(
+        d
+        for d in sweep_dir.iterdir()
+        if d.is_dir() and any((d / f).exists() for f in (RESULTS_FILE, STATE_FILE, CONFIG_FILE))
+    )
+
+
+def _is_data_dir(path: Path) -> bool:
+    try:
+        return (
+            (path / RESULTS_FILE).exists()
+            and not (path / "tb").exists()
+            and (path / "step_rewards.csv").exists()
+        )
+    except OSError as error:  # pragma: no cover - unreadable directory
+        raise RunDataError(f"{path}: {error}") from error

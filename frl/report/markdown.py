@@ -1,0 +1,427 @@
+"""The markdown of ``docs/results.md``: generated tables between markers, prose kept.
+
+Each generated block sits between ``<!-- frl.report:begin NAME -->`` and
+``<!-- frl.report:end NAME -->``. Rebuilding replaces only those blocks, so the
+hand-written discussion around them survives; a block missing from the file is
+appended at its end.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable
+
+import numpy as np
+
+from frl.report.aggregate import (
+    FIG3_SETTINGS,
+    PAPER_INTERVAL,
+    SCHEME_LABELS,
+    SCHEMES,
+    TASKS,
+    CurveSettings,
+    EvalSummary,
+    IntervalPoint,
+    RewardPoint,
+    SchemeCurves,
+)
+from frl.report.collect import Collection
+from frl.report.runs import RunRecord
+from frl.report.stats import CONFIDENCE, Estimate
+
+NOT_RUN = "not run yet"
+BLOCKS: tuple[str, ...] = ("method", "fig3", "fig4", "fig5", "fig6", "runs")
+PAPER_CROSSING = {"fedavg": 4593, "separate": 6068, "central": 9841}
+PAPER_SPEEDUP = {"separate": 32.11, "central": 114.26}
+PAPER_FINAL_GAIN = 21.00
+PAPER_FIG6_INTERVALS = (250, 500, 1000, 2000, 2500, 5000, 10000)
+PAPER_FIG6_BEST = (2000, 6.84)
+
+TEMPLATE = """# Reproducing the paper's results
+
+Built by `python -m frl.report`. The blocks between `<!-- frl.report:begin ... -->` and
+`<!-- frl.report:end ... -->` are rewritten on every build; everything else is
+hand-written and kept.
+
+## Summary
+
+_Not written yet: what reproduced and what did not, from the tables below._
+
+## How the numbers were made
+
+{method}
+
+## Fig. 3: reward tuning
+
+{fig3}
+
+_Discussion not written yet._
+
+## Fig. 4: convergence
+
+{fig4}
+
+_Discussion not written yet._
+
+## Fig. 5: test performance per task
+
+{fig5}
+
+_Discussion not written yet._
+
+## Fig. 6: aggregation interval
+
+{fig6}
+
+_Discussion not written yet._
+
+## Runs
+
+{runs}
+"""
+
+
+def block(name: str, body: str) -> str:
+    return f"<!-- frl.report:begin {name} -->\n{body.strip()}\n<!-- frl.report:end {name} -->"
+
+
+def merge(existing: str | None, blocks: dict[str, str]) -> str:
+    """``existing`` with its generated blocks replaced (the template if None)."""
+    if existing is None:
+        return TEMPLATE.format(**{name: block(name, body) for name, body in blocks.items()})
+    text = existing
+    for name, body in blocks.items():
+        begin, end = (re.escape(f"<!-- frl.report:{m} {name} -->") for m in ("begin", "end"))
+        pattern = re.compile(f"{begin}.*?{end}", re.DOTALL)
+        if pattern.search(text):
+            text = pattern.sub(lambda _m, n=name, b=body: block(n, b), text, count=1)
+        else:
+            text = text.rstrip("\n") + "\n\n" + block(name, body) + "\n"
+    return text
+
+
+# ----------------------------------------------------------------- formatting
+def fmt(estimate: Estimate | None, digits: int = 2, percent: bool = False) -> str:
+    """``mean ± half`` (95% CI), ``mean (n=1)``, or the not-run marker."""
+    if estimate is None or estimate.n == 0 or not np.isfinite(estimate.mean):
+        return "–"
+    scale, unit = (100.0, "%") if percent else (1.0, "")
+    mean = f"{estimate.mean * scale:.{digits}f}"
+    if estimate.half_width is None:
+        return f"{mean}{unit} (n=1)"
+    return f"{mean} ± {estimate.half_width * scale:.{digits}f}{unit}"
+
+
+def table(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:
+    header = list(header)
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def _seeds(seeds: list[int]) -> str:
+    return f"{len(seeds)} ({', '.join(str(s) for s in seeds)})"
+
+
+def _pct_change(new: float, old: float) -> str:
+    if not (np.isfinite(new) and np.isfinite(old)) or old == 0:
+        return "–"
+    return f"{(new - old) / abs(old) * 100:+.2f}%"
+
+
+def _image(path: str | None, alt: str) -> str:
+    return f"![{alt}]({path})\n\n" if path else ""
+
+
+# ------------------------------------------------------------------- blocks
+def method_block(collection: Collection, settings: CurveSettings) -> str:
+    level = f"{CONFIDENCE:.0%}"
+    return f"""- Source: `{collection.root}`, {collection.count} finished run(s); the runs
+  table at the end gives each one's seed, wall time and commit.
+- Every number is a mean over seeds with a {level} confidence interval from the
+  t distribution with n-1 degrees of freedom (`mean ± half-width`); `(n=1)`: one seed,
+  no interval. `–`: no data; "{NOT_RUN}": the runs do not exist yet.
+- Training reward (Figs. 4 and 6): at each step, the mean return of each agent's last
+  {settings.episode_window} training episodes (Stable-Baselines3's `ep_rew_mean`, the
+  paper's tool), averaged over the agents; the paper's reward scale (a clean pass scores
+  about 6.7). "First step >= {settings.threshold:g}" is the first step at which this curve
+  reaches {settings.threshold:g}; "final" is its value at the last step. The per-step
+  `train/step_reward` ({settings.step_window}-step moving average) is plotted beside it.
+- Test metrics (Figs. 3 and 5): 100 episodes per task after training, exploration off.
+  "Travel time (all)" counts every episode to its end, collisions and time-outs
+  included (the paper's convention; it makes collisions look fast); "travel time
+  (arrived)" averages arrived episodes only.
+- Fig. 3 is trained with the scheme named in its table (Central-DDPG by default: one
+  agent, a random task per episode, tested on every task), its paper-reward point shared
+  with Fig. 4's runs; Fig. 6's interval {PAPER_INTERVAL} is Fig. 4's FedAvg runs."""
+
+
+def fig4_block(curves: dict[str, SchemeCurves], settings: CurveSettings, image: str | None) -> str:
+    if not curves:
+        return f"_{NOT_RUN}_ (needs `fig4/` runs: `python -m frl.reproduce --figures fig4`)."
+    threshold = f"{settings.threshold:g}"
+    rows = []
+    for scheme in SCHEMES:
+        c = curves.get(scheme)
+        if c is None:
+            rows.append(
+                [SCHEME_LABELS[scheme], NOT_RUN, "", "", "", f"{PAPER_CROSSING[scheme]:,}", "", ""]
+            )
+            continue
+        crossed = sum(x is not None for x in c.crossings)
+        per_seed = ", ".join("never" if x is None else f"{x:,}" for x in c.crossings)
+        mean_cross = "never" if c.mean_curve_crossing is None else f"{c.mean_curve_crossing:,}"
+        rows.append(
+            [
+                SCHEME_LABELS[scheme],
+                _seeds(c.seeds),
+                fmt(c.crossing, 0),
+                f"{crossed}/{len(c.seeds)}: {per_seed}",
+                mean_cross,
+                f"{PAPER_CROSSING[scheme]:,}",
+                fmt(c.final_reward),
+                fmt(c.final_step_reward, 4),
+            ]
+        )
+    text = _image(image, "Fig. 4") + table(
+        [
+            "scheme",
+            "seeds",
+            f"first step >= {threshold} (seeds that crossed)",
+            "crossed: per seed",
+            "mean curve crosses at",
+            "paper",
+            "final reward",
+            "final train/step_reward (last 10%)",
+        ],
+        rows,
+    )
+    fed = curves.get("fedavg")
+    comparisons = []
+    for other in ("separate", "central"):
+        o = curves.get(other)
+        if fed is None or o is None:
+            comparisons.append(
+                [
+                    SCHEME_LABELS[other],
+                    NOT_RUN,
+                    f"{PAPER_SPEEDUP[other]:.2f}%",
+                    NOT_RUN,
+                    f"{PAPER_FINAL_GAIN:.2f}%",
+                ]
+            )
+            continue
+        speed = (
+            _pct_change(o.mean_curve_crossing, fed.mean_curve_crossing)
+            if o.mean_curve_crossing and fed.mean_curve_crossing
+            else "–"
+        )
+        comparisons.append(
+            [
+                SCHEME_LABELS[other],
+                speed,
+                f"+{PAPER_SPEEDUP[other]:.2f}%",
+                _pct_change(fed.final_reward.mean, o.final_reward.mean),
+                f"+{PAPER_FINAL_GAIN:.2f}%",
+            ]
+        )
+    text += "\n\nFedAvg-DDPG against each baseline (speed-up: the baseline's crossing step of "
+    text += "the mean curve over FedAvg's, minus 1; gain: final reward of FedAvg over the "
+    text += "baseline's, minus 1):\n\n"
+    text += table(
+        ["baseline", "speed-up (ours)", "paper", "final-reward gain (ours)", "paper"], comparisons
+    )
+    return text
+
+
+def fig5_block(summaries: dict[str, EvalSummary], image: str | None) -> str:
+    if not summaries:
+        return f"_{NOT_RUN}_ (needs evaluated `fig4/` runs)."
+    rows = []
+    for scheme in SCHEMES:
+        s = summaries.get(scheme)
+        for task in (*TASKS, "average"):
+            if s is None:
+                rows.append([SCHEME_LABELS[scheme], task, NOT_RUN, "", "", "", ""])
+                continue
+            m = s.metrics.get(task, {})
+            rows.append(
+                [
+                    SCHEME_LABELS[scheme],
+                    task,
+                    len(s.seeds),
+                    fmt(m.get("average_reward")),
+                    fmt(m.get("collision_rate"), 1, percent=True),
+                    fmt(m.get("average_episode_steps"), 1),
+                    fmt(m.get("average_travel_time"), 1),
+                ]
+            )
+    text = _image(image, "Fig. 5") + table(
+        [
+            "scheme",
+            "task",
+            "seeds",
+            "test reward",
+            "collision rate",
+            "travel time (all)",
+            "travel time (arrived)",
+        ],
+        rows,
+    )
+    text += (
+        "\n\nThe paper gives Fig. 5 as bars without numbers in its text. Its claims: "
+        "Central-DDPG is worst on all three metrics; FedAvg-DDPG beats Sep-DDPG on all "
+        "metrics and markedly lowers collisions on every task."
+    )
+    return text
+
+
+def fig6_block(points: list[IntervalPoint], settings: CurveSettings, image: str | None) -> str:
+    if not points:
+        return f"_{NOT_RUN}_ (needs `fig6/` runs or FedAvg runs in `fig4/`)."
+    by_interval = {p.interval: p for p in points}
+    rows = []
+    for interval in sorted(set(PAPER_FIG6_INTERVALS) | set(by_interval)):
+        paper = f"{PAPER_FIG6_BEST[1]} (best)" if interval == PAPER_FIG6_BEST[0] else "–"
+        p = by_interval.get(interval)
+        if p is None:
+            rows.append([f"{interval:,}", NOT_RUN, "", "", "", paper])
+            continue
+        mb = "–" if p.total_bytes is None else f"{p.total_bytes.mean / 1e6:,.1f}"
+        seeds = _seeds(p.seeds) + (" (fig4)" if p.borrowed else "")
+        rows.append([f"{interval:,}", seeds, fmt(p.final_reward), fmt(p.test_reward), mb, paper])
+    text = _image(image, "Fig. 6") + table(
+        [
+            "interval",
+            "seeds",
+            "final training reward",
+            "test reward",
+            "communication (MB)",
+            "paper",
+        ],
+        rows,
+    )
+    finite = [p for p in points if np.isfinite(p.final_reward.mean)]
+    if finite:
+        best = max(finite, key=lambda p: p.final_reward.mean)
+        text += (
+            f"\n\nBest interval here: {best.interval:,} (final training reward "
+            f"{fmt(best.final_reward)}); the paper: {PAPER_FIG6_BEST[0]:,} with "
+            f"{PAPER_FIG6_BEST[1]}, a biphasic curve."
+        )
+    return text
+
+
+def fig3_block(points: list[RewardPoint], image: str | None) -> str:
+    if not points:
+        return f"_{NOT_RUN}_ (needs `fig3/` runs)."
+    paper = {
+        ("paper", -0.005, -10.0): "74.83 steps, 0% collisions",
+        ("paper", -0.05, -1.0): "44.87 steps, 9% collisions",
+        ("paper", -0.05, -10.0): "6.49% faster than reference, +1 pp collisions",
+        ("paper", -0.005, -1.0): "–",
+        ("reference", -0.01, -1.0): "–",
+    }
+    found = {(p.name, p.alpha, p.lambda_): p for p in points}
+    rows = []
+    for key in [*FIG3_SETTINGS, *[k for k in found if k not in FIG3_SETTINGS]]:
+        p = found.get(key)
+        label = "reference [22]" if key[0] == "reference" else f"α={key[1]:g}, λ={key[2]:g}"
+        if p is None:
+            rows.append([label, NOT_RUN, "", "", "", "", paper.get(key, "–")])
+            continue
+        m = p.summary.metrics.get("average", {}) if p.summary else {}
+        seeds = _seeds(p.seeds) + (" (fig4)" if p.borrowed else "")
+        rows.append(
+            [
+                label,
+                p.scheme,
+                seeds,
+                fmt(m.get("average_episode_steps"), 2),
+                fmt(m.get("average_travel_time"), 2),
+                fmt(m.get("collision_rate"), 1, percent=True),
+                paper.get(key, "–"),
+            ]
+        )
+    text = _image(image, "Fig. 3") + table(
+        [
+            "reward",
+            "scheme",
+            "seeds",
+            "travel time (all)",
+            "travel time (arrived)",
+            "collision rate",
+            "paper",
+        ],
+        rows,
+    )
+    balanced, reference = found.get(("paper", -0.05, -10.0)), found.get(("reference", -0.01, -1.0))
+    if balanced and reference and balanced.summary and reference.summary:
+        b, r = balanced.summary.metrics["average"], reference.summary.metrics["average"]
+        tt_b, tt_r = b.get("average_episode_steps"), r.get("average_episode_steps")
+        cr_b, cr_r = b.get("collision_rate"), r.get("collision_rate")
+        if tt_b and tt_r and cr_b and cr_r:
+            text += (
+                f"\n\nα=-0.05, λ=-10 against the reference reward: travel time (all) "
+                f"{_pct_change(tt_b.mean, tt_r.mean)}, collision rate "
+                f"{(cr_b.mean - cr_r.mean) * 100:+.1f} pp (paper: -6.49%, +1 pp)."
+            )
+    return text
+
+
+def runs_block(collection: Collection) -> str:
+    rows = []
+    walls: list[float] = []
+    commits: set[str] = set()
+    for sweep, runs in sorted(collection.runs.items()):
+        for run in sorted(runs, key=lambda r: r.name):
+            wall = run.wall_time_s
+            if wall is not None:
+                walls.append(wall)
+            commit = run.git_commit
+            if commit:
+                commits.add(commit[:10])
+            rows.append(
+                [
+                    sweep,
+                    run.name,
+                    run.scheme,
+                    run.seed,
+                    f"{run.interval:,}",
+                    _reward_label(run),
+                    _hours(wall),
+                    (commit or "–")[:10],
+                    "yes" if run.evaluation else "no",
+                ]
+            )
+    text = table(
+        ["sweep", "run", "scheme", "seed", "interval", "reward", "wall time", "commit", "tested"],
+        rows,
+    )
+    text += (
+        f"\n\nTotal wall time of the {len(rows)} finished runs: {_hours(sum(walls))} "
+        f"(run one after another). Commits: {', '.join(sorted(commits)) or '–'}."
+    )
+    unfinished = [p for paths in collection.unfinished.values() for p in paths]
+    if unfinished:
+        text += "\n\nUnfinished (not used): " + ", ".join(
+            f"`{p.parent.name}/{p.name}`" for p in unfinished
+        )
+    return text
+
+
+def _reward_label(run: RunRecord) -> str:
+    reward = run.reward
+    if not reward:
+        return "–"
+    if reward.get("name") == "reference":
+        return "reference"
+    return f"α={float(reward.get('alpha')):g}, λ={float(reward.get('lambda_')):g}"
+
+
+def _hours(seconds: float | None) -> str:
+    if seconds is None:
+        return "–"
+    if seconds < 3600:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.2f} h"

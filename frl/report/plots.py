@@ -1,0 +1,193 @@
+"""The report's PNG figures (matplotlib, non-interactive), one function per paper figure."""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from frl.fileio import write_bytes_atomic
+from frl.report.aggregate import (
+    SCHEME_LABELS,
+    TASKS,
+    CurveSettings,
+    EvalSummary,
+    IntervalPoint,
+    RewardPoint,
+    SchemeCurves,
+)
+from frl.report.stats import Estimate
+
+COLORS = {"central": "tab:red", "separate": "tab:blue", "fedavg": "tab:green"}
+
+
+def _pyplot():  # type: ignore[no-untyped-def]
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only; never opens a window
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(figure, path: Path) -> Path:  # type: ignore[no-untyped-def]
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=120, bbox_inches="tight")
+    _pyplot().close(figure)
+    write_bytes_atomic(path, buffer.getvalue())
+    return path
+
+
+def _err(estimate: Estimate | None) -> float:
+    return estimate.half_width if estimate and estimate.half_width is not None else 0.0
+
+
+def _val(estimate: Estimate | None) -> float:
+    return estimate.mean if estimate else np.nan
+
+
+def plot_fig4(curves: dict[str, SchemeCurves], settings: CurveSettings, path: Path) -> Path:
+    """Average training reward per scheme, mean and 95% band over seeds."""
+    plt = _pyplot()
+    figure, (left, right) = plt.subplots(1, 2, figsize=(12, 4.2))
+    for scheme, c in curves.items():
+        label = f"{SCHEME_LABELS[scheme]} (n={len(c.seeds)})"
+        for axis, mean, half in (
+            (left, c.reward_mean, c.reward_half),
+            (right, c.step_mean, c.step_half),
+        ):
+            axis.plot(c.steps, mean, color=COLORS[scheme], label=label, linewidth=1.2)
+            if np.isfinite(half).any():
+                axis.fill_between(
+                    c.steps, mean - half, mean + half, color=COLORS[scheme], alpha=0.2
+                )
+    left.axhline(settings.threshold, color="gray", linestyle="--", linewidth=0.8)
+    left.set(
+        xlabel="training step (per agent)",
+        ylabel=f"average reward (last {settings.episode_window} episodes' return)",
+        title="Fig. 4: episode return, mean and 95% CI over seeds",
+    )
+    right.set(
+        xlabel="training step (per agent)",
+        ylabel=f"train/step_reward, {settings.step_window}-step moving average",
+        title="per-step reward",
+    )
+    for axis in (left, right):
+        axis.grid(alpha=0.3)
+        axis.legend(loc="lower right")
+    return _save(figure, path)
+
+
+def plot_fig5(summaries: dict[str, EvalSummary], path: Path) -> Path:
+    """Test reward, collision rate and travel time per task and scheme, with 95% CIs."""
+    plt = _pyplot()
+    panels = (
+        ("average_reward", "average reward"),
+        ("collision_rate", "collision rate"),
+        ("average_episode_steps", "travel time (steps, all episodes)"),
+    )
+    figure, axes = plt.subplots(1, 3, figsize=(14, 4))
+    x = np.arange(len(TASKS))
+    width = 0.8 / max(1, len(summaries))
+    for axis, (metric, title) in zip(axes, panels, strict=True):
+        for i, (scheme, summary) in enumerate(summaries.items()):
+            values = [summary.metrics.get(t, {}).get(metric) for t in TASKS]
+            axis.bar(
+                x + (i - (len(summaries) - 1) / 2) * width,
+                [_val(v) for v in values],
+                width,
+                yerr=[_err(v) for v in values],
+                capsize=3,
+                color=COLORS[scheme],
+                label=f"{SCHEME_LABELS[scheme]} (n={len(summary.seeds)})",
+            )
+        axis.set_xticks(x, TASKS)
+        axis.set_title(title)
+        axis.grid(axis="y", alpha=0.3)
+    axes[0].legend()
+    figure.suptitle("Fig. 5: test performance per task, mean and 95% CI over seeds")
+    return _save(figure, path)
+
+
+def plot_fig6(points: list[IntervalPoint], settings: CurveSettings, path: Path) -> Path:
+    """FedAvg reward against the aggregation interval; communication on a second axis."""
+    plt = _pyplot()
+    figure, axis = plt.subplots(figsize=(7.5, 4.5))
+    intervals = np.array([p.interval for p in points], dtype=float)
+    final = np.array([p.final_reward.mean for p in points])
+    axis.errorbar(
+        intervals,
+        final,
+        yerr=[_err(p.final_reward) for p in points],
+        marker="o",
+        capsize=3,
+        color="tab:green",
+        label=f"training reward at the end (last {settings.episode_window} episodes)",
+    )
+    half = np.array([_err(p.final_reward) for p in points])
+    axis.fill_between(intervals, final - half, final + half, color="tab:green", alpha=0.15)
+    test = np.array([_val(p.test_reward) for p in points])
+    if np.isfinite(test).any():
+        axis.errorbar(
+            intervals,
+            test,
+            yerr=[_err(p.test_reward) for p in points],
+            marker="s",
+            capsize=3,
+            linestyle="--",
+            color="tab:olive",
+            label="test reward",
+        )
+    axis.set(xscale="log", xlabel="aggregation interval (steps)", ylabel="average reward")
+    axis.set_xticks(intervals, [f"{int(i)}" for i in intervals])
+    axis.minorticks_off()
+    axis.grid(alpha=0.3)
+    second = axis.twinx()
+    cost = np.array([_val(p.total_bytes) for p in points])
+    second.plot(
+        intervals,
+        cost / 1e6,
+        marker="^",
+        color="tab:purple",
+        linestyle=":",
+        label="communication (MB, up + down)",
+    )
+    second.set(ylabel="communication cost (MB)", yscale="log")
+    lines = axis.get_legend_handles_labels()
+    more = second.get_legend_handles_labels()
+    axis.legend(lines[0] + more[0], lines[1] + more[1], loc="lower center", fontsize=8)
+    axis.set_title("Fig. 6: FedAvg-DDPG vs aggregation interval (mean, 95% CI)")
+    return _save(figure, path)
+
+
+def plot_fig3(points: list[RewardPoint], path: Path) -> Path:
+    """Test travel time and collision rate per reward setting, with 95% CIs."""
+    plt = _pyplot()
+    figure, axes = plt.subplots(1, 2, figsize=(12, 4))
+    labels = [f"{p.label}\n(n={len(p.seeds)})" for p in points]
+    x = np.arange(len(points))
+    for axis, metric, title in (
+        (axes[0], "average_episode_steps", "travel time (steps, all episodes)"),
+        (axes[1], "collision_rate", "collision rate"),
+    ):
+        values = [
+            (p.summary.metrics.get("average", {}) if p.summary else {}).get(metric) for p in points
+        ]
+        axis.bar(
+            x,
+            [_val(v) for v in values],
+            yerr=[_err(v) for v in values],
+            capsize=3,
+            color="tab:cyan",
+        )
+        axis.set_xticks(x, labels, fontsize=8)
+        axis.set_title(title)
+        axis.grid(axis="y", alpha=0.3)
+    figure.suptitle("Fig. 3: reward tuning, test average over tasks, mean and 95% CI")
+    return _save(figure, path)
+
+
+def relative(path: Path, start: Path) -> str:
+    return Path(os.path.relpath(path, start)).as_posix()

@@ -1,0 +1,253 @@
+"""Read finished runs, from a run directory or from its exported result files, and export.
+
+A run directory (docs/training.md) holds ``results.json``, ``config.yaml`` and TensorBoard
+events under ``tb/``; the per-step reward curve is ``train/step_reward`` and each client's
+training episodes are ``client{i}_{task}/episode_*``. :func:`export_run` writes the small
+files the report needs into a data directory, so figures can be re-plotted without the run:
+
+| file | content |
+|---|---|
+| ``results.json`` | the run's results (seed, wall times, git commit, evaluation, bytes) |
+| ``config.yaml`` | its resolved config (reward weights, interval, agent) |
+| ``step_rewards.csv`` | ``step,reward``: ``train/step_reward`` |
+| ``episodes.csv`` | ``client,end_step,return,collision,arrived,steps``: every training episode |
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from frl.fileio import read_json, write_bytes_atomic, write_json_atomic
+
+RESULTS_FILE = "results.json"
+CONFIG_FILE = "config.yaml"
+STATE_FILE = "state.json"
+TB_DIR = "tb"
+STEP_REWARDS_NPY = "step_rewards.npy"
+STEP_REWARDS_CSV = "step_rewards.csv"
+EPISODES_CSV = "episodes.csv"
+STEP_REWARD_TAG = "train/step_reward"
+EPISODE_FIELDS = ("return", "collision", "arrived", "steps")
+_EPISODE_TAGS = {
+    "return": "episode_return",
+    "collision": "episode_collision",
+    "arrived": "episode_arrived",
+    "steps": "episode_travel_time_steps",
+}
+
+
+class RunDataError(ValueError):
+    """A directory does not hold what the report needs; the message says what is missing."""
+
+
+@dataclass(frozen=True)
+class Episodes:
+    """One client's training episodes, in the order they ended."""
+
+    end_step: np.ndarray
+    returns: np.ndarray
+    collision: np.ndarray
+    arrived: np.ndarray
+    steps: np.ndarray
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """What the report uses of one run."""
+
+    path: Path
+    results: dict[str, Any]
+    config: dict[str, Any]
+    step_rewards: np.ndarray
+    """``train/step_reward`` at steps 1..len."""
+    episodes: dict[str, Episodes] = field(default_factory=dict)
+    """Per client name (``client0_left``)."""
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    @property
+    def scheme(self) -> str:
+        return str(self.results["scheme"])
+
+    @property
+    def seed(self) -> int:
+        return int(self.results["seed"])
+
+    @property
+    def interval(self) -> int:
+        return int(self.results["interval"])
+
+    @property
+    def total_steps(self) -> int:
+        return int(self.results["total_steps"])
+
+    @property
+    def evaluation(self) -> dict[str, Any] | None:
+        return self.results.get("evaluation")
+
+    @property
+    def reward(self) -> dict[str, Any]:
+        return dict(self.config.get("reward", {}))
+
+    @property
+    def git_commit(self) -> str | None:
+        return (self.results.get("versions") or {}).get("git_commit")
+
+    @property
+    def wall_time_s(self) -> float | None:
+        """The whole command if recorded, else the training loop."""
+        wall = self.results.get("job_wall_time_s")
+        return wall if wall is not None else self.results.get("training", {}).get("wall_time_s")
+
+
+def is_finished(run_dir: Path) -> bool:
+    """Training finished and, if the run's config asks for it, evaluation too."""
+    results_path = run_dir / RESULTS_FILE
+    if not results_path.exists():
+        return False
+    results = read_json(results_path)
+    training = results.get("training", {})
+    if training.get("steps_per_client") != results.get("total_steps"):
+        return False
+    state_path = run_dir / STATE_FILE
+    if state_path.exists() and not read_json(state_path).get("training_finished"):
+        return False
+    config = _read_config(run_dir)
+    return "evaluation" in results or not config.get("eval_episodes", 0)
+
+
+def load_run(path: str | os.PathLike[str]) -> RunRecord:
+    """A run from a run directory (TensorBoard) or a data directory (CSV files)."""
+    path = Path(path)
+    if not (path / RESULTS_FILE).exists():
+        raise RunDataError(f"{path}: no {RESULTS_FILE}")
+    results = read_json(path / RESULTS_FILE)
+    config = _read_config(path)
+    if (path / STEP_REWARDS_CSV).exists():
+        step_rewards, episodes = _read_csvs(path)
+    elif (path / TB_DIR).is_dir():
+        step_rewards, episodes = _read_tensorboard(path / TB_DIR)
+        if step_rewards.size == 0 and (path / STEP_REWARDS_NPY).exists():
+            step_rewards = np.load(path / STEP_REWARDS_NPY).astype(float)
+    else:
+        raise RunDataError(f"{path}: neither {STEP_REWARDS_CSV} nor TensorBoard events ({TB_DIR}/)")
+    return RunRecord(path, results, config, step_rewards, episodes)
+
+
+def export_run(run_dir: str | os.PathLike[str], target: str | os.PathLike[str]) -> Path:
+    """Write the run's small result files into ``target`` (created); return it."""
+    run_dir, target = Path(run_dir), Path(target)
+    if not is_finished(run_dir):
+        raise RunDataError(f"{run_dir}: not a finished run")
+    record = load_run(run_dir)
+    write_json_atomic(target / RESULTS_FILE, record.results)
+    write_bytes_atomic(
+        target / CONFIG_FILE, yaml.safe_dump(record.config, sort_keys=False).encode()
+    )
+    rows = [("step", "reward")]
+    rows += [(str(i), f"{v:.7g}") for i, v in enumerate(record.step_rewards.tolist(), start=1)]
+    write_bytes_atomic(target / STEP_REWARDS_CSV, _csv(rows))
+    rows = [("client", "end_step", *EPISODE_FIELDS)]
+    for client, ep in sorted(record.episodes.items()):
+        for i in range(ep.end_step.size):
+            rows.append(
+                (
+                    client,
+                    str(int(ep.end_step[i])),
+                    f"{ep.returns[i]:.7g}",
+                    str(int(ep.collision[i])),
+                    str(int(ep.arrived[i])),
+                    str(int(ep.steps[i])),
+                )
+            )
+    write_bytes_atomic(target / EPISODES_CSV, _csv(rows))
+    return target
+
+
+# ------------------------------------------------------------------ readers
+def _read_config(path: Path) -> dict[str, Any]:
+    config_path = path / CONFIG_FILE
+    if not config_path.exists():
+        return {}
+    return yaml.safe_load(config_path.read_text()) or {}
+
+
+def _csv(rows: list[tuple[str, ...]]) -> bytes:
+    buffer = io.StringIO()
+    csv.writer(buffer, lineterminator="\n").writerows(rows)
+    return buffer.getvalue().encode()
+
+
+def _read_csvs(path: Path) -> tuple[np.ndarray, dict[str, Episodes]]:
+    with (path / STEP_REWARDS_CSV).open() as f:
+        rows = list(csv.DictReader(f))
+    steps = np.array([int(r["step"]) for r in rows], dtype=int)
+    if not np.array_equal(steps, np.arange(1, steps.size + 1)):
+        raise RunDataError(f"{path / STEP_REWARDS_CSV}: steps are not 1, 2, 3, ...")
+    step_rewards = np.array([float(r["reward"]) for r in rows])
+    columns: dict[str, dict[str, list[float]]] = {}
+    if (path / EPISODES_CSV).exists():
+        with (path / EPISODES_CSV).open() as f:
+            for r in csv.DictReader(f):
+                client = columns.setdefault(
+                    r["client"], {k: [] for k in ("end_step", *EPISODE_FIELDS)}
+                )
+                for key in client:
+                    client[key].append(float(r[key]))
+    return step_rewards, {name: _episodes(c) for name, c in columns.items()}
+
+
+def _episodes(columns: dict[str, list[float]]) -> Episodes:
+    return Episodes(
+        end_step=np.asarray(columns["end_step"], dtype=int),
+        returns=np.asarray(columns["return"], dtype=float),
+        collision=np.asarray(columns["collision"], dtype=int),
+        arrived=np.asarray(columns["arrived"], dtype=int),
+        steps=np.asarray(columns["steps"], dtype=int),
+    )
+
+
+def _read_tensorboard(tb_dir: Path) -> tuple[np.ndarray, dict[str, Episodes]]:
+    # EventAccumulator applies the purge a resumed session writes (frl.train's purge_step).
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    accumulator = EventAccumulator(os.fspath(tb_dir), size_guidance={"scalars": 0})
+    accumulator.Reload()
+    tags = set(accumulator.Tags().get("scalars", []))
+
+    def series(tag: str) -> tuple[np.ndarray, np.ndarray]:
+        # Keep the last value written at each step, in step order.
+        by_step = {event.step: event.value for event in accumulator.Scalars(tag)}
+        steps = np.array(sorted(by_step), dtype=int)
+        return steps, np.array([by_step[s] for s in steps.tolist()], dtype=float)
+
+    step_rewards = np.zeros(0)
+    if STEP_REWARD_TAG in tags:
+        steps, values = series(STEP_REWARD_TAG)
+        if not np.array_equal(steps, np.arange(1, steps.size + 1)):
+            raise RunDataError(f"{tb_dir}: {STEP_REWARD_TAG} misses steps")
+        step_rewards = values
+    episodes: dict[str, Episodes] = {}
+    clients = sorted({t.split("/")[0] for t in tags if t.endswith(f"/{_EPISODE_TAGS['return']}")})
+    for client in clients:
+        columns: dict[str, list[float]] = {}
+        end_steps, columns["return"] = series(f"{client}/{_EPISODE_TAGS['return']}")
+        for key in ("collision", "arrived", "steps"):
+            tag = f"{client}/{_EPISODE_TAGS[key]}"
+            steps, values = series(tag) if tag in tags else (end_steps, np.zeros(end_steps.size))
+            if not np.array_equal(steps, end_steps):
+                raise RunDataError(f"{tb_dir}: {tag} does not match {client}'s episode returns")
+            columns[key] = values
+        columns["end_step"] = end_steps
+        episodes[client] = _episodes(columns)  # type: ignore[arg-type]
+    return step_rewards, episodes

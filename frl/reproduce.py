@@ -1,0 +1,193 @@
+"""Reproduce Section IV: run the figure sweeps in order, export each run, build the report.
+
+    python -m frl.reproduce                            # fig4 (= fig5), fig3, fig6; seeds 0,1,2
+    python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4   # more seeds for Figs. 4, 5
+    python -m frl.reproduce --dry-run                  # print the commands only
+    python -m frl.reproduce --export-only              # export finished runs, rebuild report
+
+Each figure is one Hydra multirun, ``python -m frl.train -m +experiment=figN``, whose
+preset (conf/experiment/) fixes the sweep, a deterministic directory per job
+(``runs/repro/fig4/fedavg-seed0``) and ``resume=auto``: running the same command again
+skips finished jobs and continues a killed one from its last round. The preset's
+:class:`ExportRun` callback copies each finished run's small result files to
+``docs/results/data/<figure>/<run>/`` as soon as it ends, and the report is built from
+those committed files. Ctrl-C stops the sweep; the next call picks up where it was.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from hydra.experimental.callback import Callback
+
+from frl.fileio import read_json
+from frl.report.collect import FIGURE_DIRS
+from frl.report.runs import RESULTS_FILE, RunDataError, export_run, is_finished
+
+log = logging.getLogger("frl.reproduce")
+
+DEFAULT_FIGURES = ("fig4", "fig3", "fig6")
+"""Fig. 4 first (the issue's priority), then the cheap Fig. 3, then Fig. 6 (the costliest)."""
+SWEEP_OF = {"fig3": "fig3", "fig4": "fig4", "fig5": "fig4", "fig6": "fig6"}
+"""Fig. 5 is tested on Fig. 4's runs."""
+DEFAULT_RUNS_DIR = Path("runs/repro")
+DEFAULT_DATA_DIR = Path("docs/results/data")
+
+
+class ExportRun(Callback):
+    """Hydra callback: export a job's run once it has finished (``hydra.callbacks``)."""
+
+    def __init__(self, data_dir: str) -> None:
+        self.data_dir = Path(data_dir)
+
+    def on_job_end(self, config: Any, job_return: Any, **kwargs: Any) -> None:
+        from hydra.core.utils import JobStatus
+
+        if job_return.status != JobStatus.COMPLETED:
+            return
+        run_dir = Path(config.get("run_dir") or config.hydra.runtime.output_dir)
+        try:
+            if export_if_stale(run_dir, self.data_dir / run_dir.name):
+                log.info("exported %s to %s", run_dir, self.data_dir / run_dir.name)
+        except (OSError, RunDataError) as error:  # keep the sweep going; --export-only retries
+            log.error("could not export %s: %s", run_dir, error)
+
+
+def export_if_stale(run_dir: Path, target: Path) -> bool:
+    """Export a finished run unless ``target`` already holds its current results."""
+    if not is_finished(run_dir):
+        return False
+    exported = target / RESULTS_FILE
+    if exported.exists() and read_json(exported) == read_json(run_dir / RESULTS_FILE):
+        return False
+    export_run(run_dir, target)
+    return True
+
+
+def export_finished(runs_dir: Path, data_dir: Path) -> list[Path]:
+    """Export every finished run under ``runs_dir/<sweep>/`` not exported as it is now;
+    return the targets written."""
+    written = []
+    for sweep in FIGURE_DIRS:
+        sweep_dir = runs_dir / sweep
+        if sweep_dir.is_dir():
+            for run_dir in sorted(d for d in sweep_dir.iterdir() if d.is_dir()):
+                target = data_dir / sweep / run_dir.name
+                if export_if_stale(run_dir, target):
+                    written.append(target)
+    return written
+
+
+def sweep_command(
+    sweep: str, seeds: str, runs_dir: Path, data_dir: Path, overrides: list[str]
+) -> list[str]:
+    """The Hydra multirun of one figure's preset."""
+    return [
+        sys.executable, "-m", "frl.train", "-m", f"+experiment={sweep}", f"seed={seeds}",
+        f"hydra.sweep.dir={runs_dir / sweep}",
+        f"hydra.callbacks.export_run.data_dir={data_dir / sweep}",
+        *overrides,
+    ]  # fmt: skip
+
+
+def _parse_figures(text: str) -> list[str]:
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    unknown = [name for name in names if name not in SWEEP_OF]
+    if unknown or not names:
+        raise ValueError(
+            f"unknown figure {', '.join(unknown) or repr(text)}; choose from {', '.join(SWEEP_OF)}"
+        )
+    sweeps: list[str] = []
+    for name in names:
+        if SWEEP_OF[name] not in sweeps:
+            sweeps.append(SWEEP_OF[name])
+    return sweeps
+
+
+def _parse_seeds(text: str) -> str:
+    try:
+        seeds = [int(s) for s in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--seeds must be comma-separated integers, got {text!r}") from None
+    if not seeds or any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
+        raise ValueError(f"--seeds must be distinct non-negative integers, got {text!r}")
+    return ",".join(str(s) for s in seeds)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m frl.reproduce",
+        description="Run the paper's Section IV sweeps (resumable), export each finished run "
+        "and build docs/results.md. Arguments after -- are passed to every sweep as Hydra "
+        "overrides.",
+    )
+    parser.add_argument("--figures", default=",".join(DEFAULT_FIGURES),
+                        help="comma-separated, in order, from fig3, fig4, fig5 (= fig4), fig6 "
+                        "(default %(default)s)")  # fmt: skip
+    parser.add_argument("--seeds", default="0,1,2", help="default %(default)s")
+    parser.add_argument("--runs-dir", type=Path, default=DEFAULT_RUNS_DIR,
+                        help="run directories (%(default)s)")  # fmt: skip
+    parser.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR,
+                        help="exported result files (%(default)s)")  # fmt: skip
+    parser.add_argument("--report", type=Path, default=Path("docs/results.md"),
+                        help="markdown report built from --data-dir (%(default)s)")  # fmt: skip
+    parser.add_argument("--no-report", action="store_true", help="skip building the report")
+    parser.add_argument("--dry-run", action="store_true", help="print the commands and stop")
+    parser.add_argument("--export-only", action="store_true",
+                        help="run nothing: export finished runs, build the report")  # fmt: skip
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides after --")
+    args = parser.parse_args(argv)
+    try:
+        sweeps = _parse_figures(args.figures)
+        seeds = _parse_seeds(args.seeds)
+    except ValueError as error:
+        parser.error(str(error))
+    if args.runs_dir.exists() and not args.runs_dir.is_dir():
+        parser.error(f"--runs-dir {args.runs_dir} is not a directory")
+    if not args.no_report and not args.dry_run:
+        from frl.report.build import MissingDependency, require_matplotlib
+
+        try:
+            require_matplotlib()  # fail now, not after hours of training
+        except MissingDependency as error:
+            parser.error(f"{error} (or pass --no-report)")
+
+    commands = [sweep_command(s, seeds, args.runs_dir, args.data_dir, args.overrides)
+                for s in sweeps]  # fmt: skip
+    if args.dry_run:
+        for command in commands:
+            print(shlex.join(command))
+        return 0
+    logging.basicConfig(level=logging.INFO, format="[frl.reproduce] %(message)s")
+    env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
+    status = 0
+    if not args.export_only:
+        for sweep, command in zip(sweeps, commands, strict=True):
+            log.info("%s: %s", sweep, shlex.join(command))
+            done = subprocess.run(command, env=env, check=False)
+            if done.returncode != 0:
+                log.error("%s stopped with exit code %d; rerun to continue", sweep, done.returncode)
+                status = done.returncode
+                break
+    for target in export_finished(args.runs_dir, args.data_dir):
+        log.info("exported %s", target)
+    if not args.no_report:
+        from frl.report.build import build_report
+
+        try:
+            written = build_report(args.data_dir, args.report)
+            log.info("report: %s", written["report"])
+        except RunDataError as error:
+            log.warning("no report yet: %s", error)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,252 @@
+"""frl.report on synthetic run directories: reading, aggregation, figures, markdown,
+export, missing runs and bad input."""
+
+import json
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from report_helpers import evaluation, make_run
+
+from frl.report import aggregate
+from frl.report.__main__ import main as report_main
+from frl.report.aggregate import CurveSettings
+from frl.report.build import MissingDependency, build_report
+from frl.report.collect import collect
+from frl.report.runs import RunDataError, export_run, load_run
+from frl.reproduce import ExportRun, export_finished
+from frl.reproduce import main as reproduce_main
+
+SETTINGS = CurveSettings(episode_window=2, step_window=3, threshold=6.0)
+T2, T1 = 4.302653, 12.706205  # t(0.975, 2), t(0.975, 1)
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    """fig4: central x 2 seeds, fedavg x 3, no separate; fig6: interval 5 x 2; fig3: the
+    reference reward x 2 and one grid point; one unfinished fig6 run."""
+    root = tmp_path_factory.mktemp("repro")
+    central = {
+        0: [(5, 2.0), (10, 6.0), (15, 8.0), (20, 8.0)],
+        1: [(5, 6.0), (10, 6.0), (15, 6.0), (20, 6.0)],
+    }
+    for seed, rows in central.items():
+        make_run(
+            root / "fig4" / f"central-seed{seed}",
+            "central",
+            seed,
+            episodes={"client0_random": rows},
+            evaluation=evaluation(4.0, 0.03, 47.0),
+        )
+    for seed, last in ((0, 7.0), (1, 7.0), (2, 9.0)):
+        episodes = {
+            f"client{i}_{t}": [(10, 5.0), (20, last)]
+            for i, t in enumerate(("left", "straight", "right"))
+        }
+        make_run(
+            root / "fig4" / f"fedavg-seed{seed}",
+            "fedavg",
+            seed,
+            episodes=episodes,
+            evaluation=evaluation(6.0 + seed, 0.1, 40.0),
+            total_bytes=1000,
+        )
+    for seed in (0, 1):
+        make_run(
+            root / "fig6" / f"interval5-seed{seed}",
+            "fedavg",
+            seed,
+            interval=5,
+            total_bytes=2000,
+            evaluation=evaluation(5.0, 0.1, 40.0),
+        )
+        make_run(
+            root / "fig3" / f"reference-seed{seed}",
+            "central",
+            seed,
+            reward="reference",
+            evaluation=evaluation(1.0, 0.02, 50.0),
+        )
+    make_run(
+        root / "fig3" / "alpha-0.005_lambda-10-seed0",
+        "central",
+        0,
+        reward="alpha-0.005_lambda-10",
+        evaluation=evaluation(3.0, 0.0, 75.0),
+    )
+    unfinished = root / "fig6" / "interval250-seed0"
+    unfinished.mkdir(parents=True)
+    (unfinished / "state.json").write_text(json.dumps({"training_finished": False}))
+    return root
+
+
+def test_a_run_directory_reads_back_what_tensorboard_holds(root):
+    run = load_run(root / "fig4" / "central-seed0")
+
+    np.testing.assert_allclose(run.step_rewards, np.linspace(0, 1, 20), rtol=1e-6)
+    episodes = run.episodes["client0_random"]
+    assert episodes.end_step.tolist() == [5, 10, 15, 20]
+    assert episodes.returns.tolist() == [2.0, 6.0, 8.0, 8.0]
+    assert episodes.arrived.tolist() == [1, 1, 1, 1] and episodes.steps.tolist() == [10] * 4
+    assert (run.scheme, run.seed, run.wall_time_s, run.git_commit[:4]) == (
+        "central",
+        0,
+        60.0,
+        "0123",
+    )
+
+
+def test_export_round_trips_and_reads_like_the_run(root, tmp_path):
+    export_run(root / "fig4" / "fedavg-seed2", tmp_path / "fedavg-seed2")
+
+    original = load_run(root / "fig4" / "fedavg-seed2")
+    exported = load_run(tmp_path / "fedavg-seed2")
+    assert sorted(p.name for p in (tmp_path / "fedavg-seed2").iterdir()) == [
+        "config.yaml",
+        "episodes.csv",
+        "results.json",
+        "step_rewards.csv",
+    ]
+    assert exported.results == original.results and exported.config == original.config
+    np.testing.assert_allclose(exported.step_rewards, original.step_rewards, rtol=1e-6)
+    assert exported.episodes.keys() == original.episodes.keys()
+    for client, episodes in original.episodes.items():
+        np.testing.assert_array_equal(exported.episodes[client].end_step, episodes.end_step)
+        np.testing.assert_allclose(exported.episodes[client].returns, episodes.returns)
+
+
+def test_fig4_threshold_steps_and_final_rewards_match_hand_computation(root):
+    curves = aggregate.fig4(collect(root), SETTINGS)
+
+    assert set(curves) == {"central", "fedavg"}  # separate: not run
+    central = curves["central"]
+    # window 2: seed 0's curve is 2 (steps 5-9), 4 (10-14), 7 (15-19), 8; seed 1's is 6 from 5
+    assert central.crossings == [15, 5]
+    assert central.crossing.mean == 10 and central.crossing.half_width == pytest.approx(
+        T1 * math.sqrt(50) / math.sqrt(2), rel=1e-5
+    )
+    assert central.final_reward.mean == 7.0
+    assert central.mean_curve_crossing == 15  # mean curve: 4 (steps 5-9), 5 (10-14), 6.5
+    fedavg = curves["fedavg"]
+    assert fedavg.crossings == [20, 20, 20]  # (5 + 7) / 2 = 6 at step 20
+    finals = [6.0, 6.0, 7.0]
+    assert fedavg.final_reward.mean == pytest.approx(np.mean(finals))
+    assert fedavg.final_reward.half_width == pytest.approx(
+        T2 * np.std(finals, ddof=1) / math.sqrt(3), rel=1e-5
+    )
+    assert np.isnan(fedavg.reward_mean[:9]).all() and fedavg.reward_mean[9] == 5.0
+
+
+def test_fig6_borrows_the_fig4_interval_and_fig3_the_paper_reward(root):
+    collection = collect(root)
+
+    points = {p.interval: p for p in aggregate.fig6(collection, SETTINGS)}
+    assert set(points) == {5, 10}
+    assert points[10].borrowed and points[10].seeds == [0, 1, 2]
+    assert not points[5].borrowed and points[5].total_bytes.mean == 2000
+    assert points[10].test_reward.mean == 7.0
+    rewards = {(p.name, p.alpha, p.lambda_): p for p in aggregate.fig3(collection)}
+    assert rewards[("paper", -0.05, -10.0)].borrowed  # fig4's Central-DDPG runs
+    assert rewards[("reference", -0.01, -1.0)].seeds == [0, 1]
+    assert collection.unfinished["fig6"][0].name == "interval250-seed0"
+
+
+def test_report_writes_figures_and_tables_beside_the_paper(root, tmp_path):
+    out = tmp_path / "docs" / "results.md"
+
+    written = build_report(root, out, settings=SETTINGS)
+
+    for name in ("fig3", "fig4", "fig5", "fig6"):
+        assert written[name].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    text = out.read_text()
+    assert "![Fig. 4](results/fig4.png)" in text
+    half = T1 * math.sqrt(50) / math.sqrt(2)
+    assert (
+        f"| Central-DDPG | 2 (0, 1) | 10 ± {half:.0f} | 2/2: 15, 5 | 15 | 9,841 | 7.00 ± " in text
+    )
+    assert "| Sep-DDPG | not run yet |" in text
+    assert f"| 6.33 ± {T2 * np.std([6, 6, 7], ddof=1) / math.sqrt(3):.2f} |" in text
+    assert f"| FedAvg-DDPG | left | 3 | 7.00 ± {T2 / math.sqrt(3):.2f} | 10.0 ± 0.0% |" in text
+    assert "| Sep-DDPG | left | not run yet |" in text
+    assert "| 10 | 3 (0, 1, 2) (fig4) |" in text and "| 5 | 2 (0, 1) |" in text
+    assert (
+        "| 250 | not run yet |" in text and "| 2,000 | not run yet |  |  |  | 6.84 (best) |" in text
+    )
+    assert "| reference [22] | central | 2 (0, 1) | 50.00 ± 0.00 |" in text
+    assert "| α=-0.05, λ=-10 | central | 2 (0, 1) (fig4) | 47.00 ± 0.00 |" in text
+    assert "| α=-0.005, λ=-1 | not run yet |" in text
+    assert "travel time (all) -6.00%, collision rate +1.0 pp (paper: -6.49%, +1 pp)" in text
+    assert (
+        "| fig4 | fedavg-seed2 | fedavg | 2 | 10 | α=-0.05, λ=-10 | 1.0 min | 0123456789 | yes |"
+        in text
+    )
+    assert "Unfinished (not used): `fig6/interval250-seed0`" in text
+    assert "Total wall time of the 10 finished runs: 10.0 min" in text
+
+
+def test_rebuilding_keeps_hand_written_prose(root, tmp_path):
+    out = tmp_path / "results.md"
+    out.write_text(
+        "# Results\n\nFedAvg converges first, as in the paper.\n\n"
+        "<!-- frl.report:begin fig4 -->\n| stale |\n<!-- frl.report:end fig4 -->\n\n"
+        "Hand-written discussion of Fig. 4.\n"
+    )
+
+    build_report(root, out, settings=SETTINGS)
+
+    text = out.read_text()
+    assert text.startswith("# Results\n\nFedAvg converges first, as in the paper.\n")
+    assert "Hand-written discussion of Fig. 4." in text
+    assert "| stale |" not in text and "| Sep-DDPG | not run yet |" in text
+    assert text.count("<!-- frl.report:begin fig4 -->") == 1
+    assert text.index("begin fig4") < text.index("Hand-written") < text.index("begin fig6")
+
+
+def test_a_report_from_fig4_alone_marks_the_other_figures_not_run(root, tmp_path):
+    only = tmp_path / "only"
+    export_run(root / "fig4" / "fedavg-seed0", only / "fig4" / "fedavg-seed0")
+
+    written = build_report(only, tmp_path / "r.md", settings=SETTINGS)
+
+    text = (tmp_path / "r.md").read_text()
+    assert "fig3" not in written and "fig6" in written  # fig6: the borrowed interval
+    assert "## Fig. 3: reward tuning\n\n<!-- frl.report:begin fig3 -->\n_not run yet_" in text
+    assert "(n=1)" in text
+
+
+def test_bad_input_fails_before_any_work(tmp_path, capsys, monkeypatch):
+    with pytest.raises(RunDataError, match="no such directory"):
+        collect(tmp_path / "missing")
+    with pytest.raises(RunDataError, match="no runs found"):
+        collect(tmp_path)
+    (tmp_path / "fig4" / "fedavg-seed0").mkdir(parents=True)
+    (tmp_path / "fig4" / "fedavg-seed0" / "state.json").write_text('{"training_finished": false}')
+    with pytest.raises(RunDataError, match="no finished run yet"):
+        collect(tmp_path)
+
+    assert report_main([str(tmp_path / "missing"), "--out", str(tmp_path / "r.md")]) == 2
+    assert "no such directory" in capsys.readouterr().err
+    assert not (tmp_path / "r.md").exists()
+    with pytest.raises(SystemExit):
+        reproduce_main(["--figures", "fig4,fig7", "--dry-run"])
+    assert "unknown figure fig7" in capsys.readouterr().err
+
+    monkeypatch.setattr("importlib.util.find_spec", lambda name: None)
+    with pytest.raises(MissingDependency, match=r"pip install .*\[report\]"):
+        build_report(tmp_path, tmp_path / "r.md")
+
+
+def test_export_callback_and_export_only_skip_what_is_current(root, tmp_path):
+    run_dir = root / "fig4" / "central-seed1"
+    callback = ExportRun(str(tmp_path / "data" / "fig4"))
+    from hydra.core.utils import JobStatus
+
+    job = SimpleNamespace(status=JobStatus.COMPLETED)
+    callback.on_job_end({"run_dir": str(run_dir)}, job)
+
+    exported = tmp_path / "data" / "fig4" / "central-seed1"
+    assert load_run(exported).results == load_run(run_dir).results
+    written = export_finished(root, tmp_path / "data")
+    assert exported not in written and len(written) == 9  # everything else; not unfinished
+    assert export_finished(root, tmp_path / "data") == []
