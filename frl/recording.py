@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from frl.envs import IntersectionEnv
+from frl.fileio import atomic_write
 
 Policy = Callable[[np.ndarray], np.ndarray]
 
@@ -32,15 +31,8 @@ def record_episode(path: Path | str, task: str, seed: int, policy: Policy) -> Pa
     finally:
         env.close()
     images = [Image.fromarray(frame) for frame in frames]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(suffix=".gif", dir=path.parent)
-    os.close(handle)
-    try:
+    with atomic_write(path) as f:
         images[0].save(
-            temporary, save_all=True, append_images=images[1:], duration=1000 // fps, loop=0
+            f, format="GIF", save_all=True, append_images=images[1:], duration=1000 // fps, loop=0
         )
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
     return path

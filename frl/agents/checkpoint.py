@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
+
+from frl.fileio import atomic_write
 
 CHECKPOINT_FORMAT = "frl.agents.ddpg"
 CHECKPOINT_VERSION = 1
@@ -18,31 +19,11 @@ class CheckpointError(ValueError):
 
 
 def write_checkpoint(payload: dict[str, Any], path: str | os.PathLike[str]) -> None:
-    """Save ``payload`` tagged with format and version, atomically.
-
-    The file is written under a temporary name in the target directory, fsynced, then
-    renamed over ``path`` (``os.replace`` is atomic on POSIX and Windows), so a crash
-    leaves either the old file or the new one, never a torn one.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Save ``payload`` tagged with format and version, atomically: a crash leaves the old
+    file or the new one, never a torn one (:func:`frl.fileio.atomic_write`)."""
     data = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, **payload}
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(data, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp_name, path)
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
-    if hasattr(os, "O_DIRECTORY"):  # make the rename itself durable (POSIX only)
-        dir_fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
-        try:
-            os.fsync(dir_fd)
-        finally:
-            os.close(dir_fd)
+    with atomic_write(path) as f:
+        torch.save(data, f)
 
 
 def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
