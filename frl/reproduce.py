@@ -29,7 +29,13 @@ from hydra.experimental.callback import Callback
 
 from frl.fileio import read_json
 from frl.report.collect import FIGURE_DIRS
-from frl.report.runs import RESULTS_FILE, RunDataError, export_run, is_finished
+from frl.report.runs import (
+    RESULTS_FILE,
+    RunDataError,
+    export_run,
+    exported_results,
+    is_finished,
+)
 
 log = logging.getLogger("frl.reproduce")
 
@@ -65,7 +71,7 @@ def export_if_stale(run_dir: Path, target: Path) -> bool:
     if not is_finished(run_dir):
         return False
     exported = target / RESULTS_FILE
-    if exported.exists() and read_json(exported) == read_json(run_dir / RESULTS_FILE):
+    if exported.exists() and read_json(exported) == exported_results(run_dir):
         return False
     export_run(run_dir, target)
     return True

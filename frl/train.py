@@ -213,7 +213,11 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
                 f"mean of train/step_reward over the last {FINAL_REWARD_FRACTION:.0%} of steps"
             ),
         },
-        "versions": versions(),
+        # The versions the training ran with (written at the session's start); HEAD may
+        # have moved by now.
+        "versions": (
+            read_json(run_dir / VERSIONS_FILE) if (run_dir / VERSIONS_FILE).exists() else versions()
+        ),
         "run_dir": os.fspath(run_dir),
     }
 
@@ -228,19 +232,24 @@ def versions() -> dict[str, Any]:
         except importlib.metadata.PackageNotFoundError:
             return None
 
-    commit = None
-    with contextlib.suppress(OSError, subprocess.SubprocessError):
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=Path(frl.__file__).parent,
-            capture_output=True,
-            text=True,
-            timeout=5,
-            check=True,
-        ).stdout.strip()
+    def git(*args: str) -> str | None:
+        with contextlib.suppress(OSError, subprocess.SubprocessError):
+            return subprocess.run(
+                ["git", *args],
+                cwd=Path(frl.__file__).parent,
+                capture_output=True,
+                text=True,
+                timeout=5,
+                check=True,
+            ).stdout.strip()
+        return None
+
+    commit = git("rev-parse", "HEAD")
+    changes = git("status", "--porcelain", "--untracked-files=no") if commit else None
     return {
         "frl": frl.__version__,
         "git_commit": commit,
+        "git_dirty": None if changes is None else bool(changes),
         "torch": torch.__version__,
         "numpy": np.__version__,
         "sumo": dist("eclipse-sumo"),

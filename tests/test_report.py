@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 from report_helpers import evaluation, make_run
 
+from frl.fileio import write_json_atomic
 from frl.report import aggregate
 from frl.report.__main__ import main as report_main
 from frl.report.aggregate import CurveSettings
 from frl.report.build import MissingDependency, build_report
 from frl.report.collect import collect
 from frl.report.runs import RunDataError, export_run, load_run
-from frl.reproduce import ExportRun, export_finished
+from frl.reproduce import ExportRun, export_finished, export_if_stale
 from frl.reproduce import main as reproduce_main
 
 SETTINGS = CurveSettings(episode_window=2, step_window=3, threshold=6.0)
@@ -250,3 +251,14 @@ def test_export_callback_and_export_only_skip_what_is_current(root, tmp_path):
     written = export_finished(root, tmp_path / "data")
     assert exported not in written and len(written) == 9  # everything else; not unfinished
     assert export_finished(root, tmp_path / "data") == []
+
+
+def test_export_records_the_versions_the_run_trained_with(root, tmp_path):
+    run_dir = root / "fig4" / "fedavg-seed2"
+    write_json_atomic(run_dir / "versions.json", {"git_commit": "feedbeef", "git_dirty": False})
+
+    export_run(run_dir, tmp_path / "fedavg-seed2")
+
+    exported = load_run(tmp_path / "fedavg-seed2")
+    assert exported.git_commit == "feedbeef"  # not results.json's commit at the run's end
+    assert not export_if_stale(run_dir, tmp_path / "fedavg-seed2")  # current: not redone

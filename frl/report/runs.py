@@ -25,13 +25,11 @@ from typing import Any
 import numpy as np
 import yaml
 
+from frl.federation.coordinator import STATE_FILE
+from frl.federation.coordinator import STEP_REWARDS_FILE as STEP_REWARDS_NPY
 from frl.fileio import read_json, write_bytes_atomic, write_json_atomic
+from frl.train import CONFIG_FILE, RESULTS_FILE, TB_DIR, VERSIONS_FILE
 
-RESULTS_FILE = "results.json"
-CONFIG_FILE = "config.yaml"
-STATE_FILE = "state.json"
-TB_DIR = "tb"
-STEP_REWARDS_NPY = "step_rewards.npy"
 STEP_REWARDS_CSV = "step_rewards.csv"
 EPISODES_CSV = "episodes.csv"
 STEP_REWARD_TAG = "train/step_reward"
@@ -144,13 +142,25 @@ def load_run(path: str | os.PathLike[str]) -> RunRecord:
     return RunRecord(path, results, config, step_rewards, episodes)
 
 
+def exported_results(run_dir: Path) -> dict[str, Any]:
+    """The run's ``results.json`` as exported, with the versions it trained with.
+
+    Runs made before ``results.json`` recorded ``versions.json`` carry the versions (git
+    commit) of the moment they finished, which may be later than the code that trained.
+    """
+    results = read_json(run_dir / RESULTS_FILE)
+    if (run_dir / VERSIONS_FILE).exists():
+        results["versions"] = read_json(run_dir / VERSIONS_FILE)
+    return results
+
+
 def export_run(run_dir: str | os.PathLike[str], target: str | os.PathLike[str]) -> Path:
     """Write the run's small result files into ``target`` (created); return it."""
     run_dir, target = Path(run_dir), Path(target)
     if not is_finished(run_dir):
         raise RunDataError(f"{run_dir}: not a finished run")
     record = load_run(run_dir)
-    write_json_atomic(target / RESULTS_FILE, record.results)
+    write_json_atomic(target / RESULTS_FILE, exported_results(run_dir))
     write_bytes_atomic(
         target / CONFIG_FILE, yaml.safe_dump(record.config, sort_keys=False).encode()
     )
