@@ -123,19 +123,8 @@ def train(cfg: DictConfig, on_round_end: RoundHook | None = None) -> dict[str, A
         if resuming and state_path.exists()
         else RunState()
     )
-    plan = settings.plan
     if not state.training_finished:
-        specs = build_client_specs(settings)
-        purge_step = state.steps_per_client + 1 if state.steps_per_client else None
-        with (
-            TrainingLogger(run_dir / TB_DIR, purge_step=purge_step) as logger,
-            ProcessClientPool(
-                specs,
-                num_threads=settings.threads_per_worker,
-                timeout_s=settings.worker_timeout_s,
-            ) as pool,
-        ):
-            Coordinator(plan, pool, run_dir, logger, progress, on_round_end).run(state)
+        state = train_rounds(settings, run_dir, state, progress, on_round_end)
 
     results = training_results(settings, state, run_dir)
     results_path = run_dir / RESULTS_FILE
@@ -158,6 +147,35 @@ def train(cfg: DictConfig, on_round_end: RoundHook | None = None) -> dict[str, A
     return results
 
 
+def train_rounds(
+    settings: TrainSettings,
+    run_dir: Path,
+    state: RunState,
+    progress: bool = False,
+    on_round_end: RoundHook | None = None,
+) -> RunState:
+    """The round loop on ``federation.backend``, from ``state`` to the end; the final state.
+
+    Under ``flower`` with the deployment runtime the rounds run in the ServerApp's
+    process, so ``on_round_end`` is not called there.
+    """
+    specs = build_client_specs(settings)
+    if settings.backend == "flower":
+        from frl.federation.flower.runtime import train_rounds as flower_rounds
+
+        return flower_rounds(settings, specs, run_dir, state, progress, on_round_end)
+    purge_step = state.steps_per_client + 1 if state.steps_per_client else None
+    with (
+        TrainingLogger(run_dir / TB_DIR, purge_step=purge_step) as logger,
+        ProcessClientPool(
+            specs,
+            num_threads=settings.threads_per_worker,
+            timeout_s=settings.worker_timeout_s,
+        ) as pool,
+    ):
+        return Coordinator(settings.plan, pool, run_dir, logger, progress, on_round_end).run(state)
+
+
 def training_results(settings: TrainSettings, state: RunState, run_dir: Path) -> dict[str, Any]:
     """The training and communication sections of ``results.json``."""
     plan = settings.plan
@@ -170,6 +188,7 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
     wall = state.wall_time_s
     return {
         "scheme": plan.scheme,
+        "backend": settings.backend,
         "seed": settings.seed,
         "interval": plan.interval,
         "total_steps": plan.total_steps,
@@ -202,6 +221,7 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
             "episodes": state.episodes,
             "collisions": state.collisions,
             "arrivals": state.arrivals,
+            "dropped_clients": state.dropped_clients,
             "final_step_reward": float(step_rewards[-tail:].mean()) if len(step_rewards) else None,
             "final_step_reward_definition": (
                 f"mean of train/step_reward over the last {FINAL_REWARD_FRACTION:.0%} of steps"
