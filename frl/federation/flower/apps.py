@@ -29,7 +29,7 @@ from flwr.app import Array, ArrayRecord, ConfigRecord, Context, Message, MetricR
 from flwr.clientapp import ClientApp
 from flwr.serverapp import Grid, ServerApp
 
-from frl.federation.flower.codec import Arrays, prefixed, unprefixed
+from frl.federation.flower.frames import Arrays, prefixed, unprefixed
 from frl.federation.flower.vehicle import (
     PARAMETERS_PREFIX,
     SERIES_PREFIX,

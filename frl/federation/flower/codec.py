@@ -5,9 +5,8 @@ Two encodings of the same content:
 - Flower messages carry arrays (numpy, serialised by Flower with ``allow_pickle=False``)
   and JSON text in a ``ConfigRecord``; :mod:`frl.federation.flower.apps` builds them
   from the plain parts below.
-- The local channel between a ClientApp and its vehicle process carries one *frame*:
-  a JSON header and an ``.npz`` archive of arrays (:func:`encode_frame`), read back with
-  ``allow_pickle=False``.
+- The local channel between a ClientApp and its vehicle process carries the same parts
+  as frames (:mod:`frl.federation.flower.frames`).
 
 Nothing here imports Flower, so the vehicle process does not need it.
 """
@@ -15,9 +14,7 @@ Nothing here imports Flower, so the vehicle process does not need it.
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
-import struct
 from collections.abc import Mapping
 from typing import Any
 
@@ -29,14 +26,11 @@ from frl.agents import DDPGConfig
 from frl.envs import EnvConfig, GridConfig, RewardConfig, ScenarioConfig
 from frl.episodes import EpisodeRecord
 from frl.federation.client import ClientSpec, LocalUpdate
+from frl.federation.flower.frames import Arrays, prefixed, unprefixed
 
 PARAMETER_PREFIX = "param/"
 LOSS_PREFIX = "loss/"
 STEP_REWARDS = "step_rewards"
-
-Arrays = dict[str, np.ndarray]
-
-_HEADER = struct.Struct("!I")
 
 
 # ------------------------------------------------------------------ client specs
@@ -72,14 +66,6 @@ def tensors_to_arrays(parameters: Mapping[str, Tensor]) -> Arrays:
 
 def arrays_to_tensors(arrays: Mapping[str, np.ndarray]) -> dict[str, Tensor]:
     return {key: torch.from_numpy(np.array(value, copy=True)) for key, value in arrays.items()}
-
-
-def prefixed(arrays: Mapping[str, np.ndarray], prefix: str) -> Arrays:
-    return {prefix + key: value for key, value in arrays.items()}
-
-
-def unprefixed(arrays: Mapping[str, np.ndarray], prefix: str) -> Arrays:
-    return {key[len(prefix) :]: value for key, value in arrays.items() if key.startswith(prefix)}
 
 
 # ------------------------------------------------------------------ updates
@@ -118,27 +104,3 @@ def update_from_parts(
         parameters=None if parameters is None else arrays_to_tensors(parameters),
         cpu_time_s=float(summary["cpu_time_s"]),
     )
-
-
-# ------------------------------------------------------------------ local frames
-def encode_frame(
-    header: Mapping[str, Any], arrays: Mapping[str, np.ndarray] | None = None
-) -> bytes:
-    """One message of the local channel: length-prefixed JSON, then an ``.npz`` archive."""
-    text = json.dumps(dict(header)).encode()
-    buffer = io.BytesIO()
-    if arrays:
-        np.savez(buffer, **{key: np.asarray(value) for key, value in arrays.items()})
-    return _HEADER.pack(len(text)) + text + buffer.getvalue()
-
-
-def decode_frame(frame: bytes) -> tuple[dict[str, Any], Arrays]:
-    """Inverse of :func:`encode_frame`; arrays are loaded with ``allow_pickle=False``."""
-    (length,) = _HEADER.unpack_from(frame)
-    start = _HEADER.size
-    header = json.loads(frame[start : start + length])
-    rest = frame[start + length :]
-    if not rest:
-        return header, {}
-    with np.load(io.BytesIO(rest), allow_pickle=False) as archive:
-        return header, {key: archive[key] for key in archive.files}

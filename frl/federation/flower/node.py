@@ -37,6 +37,13 @@ def flower_executable(name: str) -> str:
     return found
 
 
+def flower_env(extra: dict[str, str] | None = None) -> dict[str, str]:
+    """This environment, with this Python's scripts first on PATH: Flower's processes
+    start further Flower commands (``flower-superexec``) by name."""
+    path = os.pathsep.join([os.fspath(Path(sys.executable).parent), os.environ.get("PATH", "")])
+    return {**os.environ, "PATH": path, **(extra or {})}
+
+
 def free_port() -> int:
     """A TCP port on 127.0.0.1 that nothing listens on right now."""
     with socket.socket() as probe:
@@ -97,8 +104,8 @@ class VehicleNode:
         self.flwr_home = flwr_home
         self.clientapp_port = clientapp_port
         self.log_path = log_path
-        self.env = dict(os.environ if env is None else env)
-        self.service = VehicleService(state_dir, num_threads)
+        self.env = flower_env() if env is None else dict(env)
+        self.service = VehicleService(state_dir, num_threads, name=f"frl-vehicle-{partition_id}")
         self.supernode: subprocess.Popen[bytes] | None = None
 
     def __enter__(self) -> VehicleNode:

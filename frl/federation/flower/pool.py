@@ -163,6 +163,7 @@ class FlowerClientPool:
             for index, header in headers.items()
         ]
         by_node = {self._nodes[index]: index for index in headers}
+        began = time.perf_counter()
         replies: dict[int, Message] = {}
         failures: dict[int, str] = {}
         for reply in self.grid.send_and_receive(messages, timeout=self.timeout_s):
@@ -171,6 +172,7 @@ class FlowerClientPool:
                 failures[index] = reply.error.reason
             else:
                 replies[index] = reply
+        log.debug("%s: %d replies in %.2f s", op, len(replies), time.perf_counter() - began)
         for index in headers:
             if index not in replies and index not in failures:
                 failures[index] = f"no answer to {op!r} within timeout_s={self.timeout_s}"

@@ -33,6 +33,7 @@ from frl.federation.client import ClientSpec
 from frl.federation.coordinator import STATE_FILE, Coordinator, RoundHook, RunState
 from frl.federation.flower.node import (
     VehicleNode,
+    flower_env,
     flower_executable,
     free_port,
     stop_processes,
@@ -50,6 +51,9 @@ FAILURE_FILE = "flower_failure.json"
 """Why a deployment run stopped, written by its ServerApp for ``frl.train`` to raise."""
 LOG_DIR = "flower"
 """Logs of the SuperLink, the SuperNodes and ``flwr run`` under the run directory."""
+POLL_ENV = {"FLWR_SUPEREXEC_TASK_POLL_INTERVAL": "0.1"}
+"""Flower's process launchers look for new work every second by default; on a local
+federation that second is added to every message, so look more often."""
 TOKEN_VAR = "FRL_FLOWER_TOKEN"
 """Set in every process a local federation starts, so that none can be left behind."""
 
@@ -119,7 +123,10 @@ def _simulate(
     threads = settings.threads_per_worker or _default_threads(len(specs))
     outcome: dict[str, Any] = {}
     with contextlib.ExitStack() as stack:
-        services = [stack.enter_context(VehicleService(run_dir, threads)) for _ in specs]
+        services = [
+            stack.enter_context(VehicleService(run_dir, threads, name=f"frl-vehicle-{spec.name}"))
+            for spec in specs
+        ]
         endpoints = [service.endpoint for service in services]
         client_app = make_client_app(_SimulatedEndpoints(endpoints, PARTITION_KEY))
         server_app = ServerApp()
@@ -177,7 +184,13 @@ def serve_run_dir(grid: Any, run_dir: str) -> None:
     from frl.train_config import load_run_config, validate
 
     directory = Path(run_dir)
-    logging.basicConfig(level=logging.INFO)
+    # frl's own messages only: Flower forwards this process's log records to the
+    # SuperLink over HTTP, so a root handler at INFO would log its own requests.
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s"))
+    frl_log = logging.getLogger("frl")
+    frl_log.addHandler(handler)
+    frl_log.setLevel(logging.DEBUG if os.environ.get("FRL_FLOWER_DEBUG") else logging.INFO)
     try:
         settings = validate(load_run_config(directory))
         state_path = directory / STATE_FILE
@@ -214,7 +227,7 @@ def _deploy(settings: TrainSettings, run_dir: Path) -> RunState:
             )
             address, env = federation.address, federation.env()
         else:
-            address, env = flower.superlink, dict(os.environ)
+            address, env = flower.superlink, flower_env()
         _submit(address, run_dir, env, logs / "flwr_run.log")
     state_path = run_dir / STATE_FILE
     failure = run_dir / FAILURE_FILE
@@ -285,7 +298,7 @@ class LocalFederation:
         return f"127.0.0.1:{self.port}"
 
     def env(self) -> dict[str, str]:
-        return {**os.environ, TOKEN_VAR: self.token}
+        return flower_env({**POLL_ENV, TOKEN_VAR: self.token})
 
     def __enter__(self) -> LocalFederation:
         try:

@@ -35,17 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from frl.federation.flower.codec import (
-    Arrays,
-    arrays_to_tensors,
-    decode_frame,
-    encode_frame,
-    prefixed,
-    spec_from_json,
-    tensors_to_arrays,
-    unprefixed,
-    update_to_parts,
-)
+# Light imports only: the ClientApp imports this module for every message. The vehicle's
+# own work (torch, SUMO) is imported in the vehicle process, by VehicleHost.
+from frl.federation.flower.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
 
 SERIES_PREFIX = "series/"
 PARAMETERS_PREFIX = "parameters/"
@@ -80,6 +72,12 @@ class VehicleHost:
         self.spec_json: str | None = None
 
     def handle(self, header: Mapping[str, Any], arrays: Arrays) -> tuple[dict[str, Any], Arrays]:
+        from frl.federation.flower.codec import (
+            arrays_to_tensors,
+            tensors_to_arrays,
+            update_to_parts,
+        )
+
         op = header["op"]
         if op == "ping":
             return {"run_key": self.run_key}, {}
@@ -118,6 +116,7 @@ class VehicleHost:
             return {"client": self.client.name, "built": False}  # a repeated setup
         self.close()
         from frl.federation.client import VehicleClient
+        from frl.federation.flower.codec import spec_from_json
 
         self.client = VehicleClient(spec_from_json(spec_json))
         self.run_key, self.spec_json = run_key, spec_json
@@ -225,6 +224,7 @@ class VehicleService:
         num_threads: torch threads of the vehicle process.
         socket_dir: directory of the Unix socket; default: a private temporary one.
         start_timeout_s: longest the process may take to answer its first ping.
+        name: the process's name (``multiprocessing``'s, for logs and tests).
     """
 
     def __init__(
@@ -233,7 +233,9 @@ class VehicleService:
         num_threads: int = 1,
         socket_dir: str | os.PathLike[str] | None = None,
         start_timeout_s: float = 120.0,
+        name: str = "frl-vehicle",
     ) -> None:
+        self.name = name
         self.state_dir = Path(state_dir)
         self.num_threads = num_threads
         self.start_timeout_s = start_timeout_s
@@ -269,7 +271,7 @@ class VehicleService:
                 os.fspath(self.state_dir),
                 self.num_threads,
             ),
-            name="frl-vehicle",
+            name=self.name,
             daemon=True,
         )
         self._process.start()
