@@ -212,6 +212,10 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
             "seconds_per_round": wall / state.completed_rounds if state.completed_rounds else None,
             "local_training_s": state.local_training_s,
             "client_cpu_s": state.client_cpu_s,
+            "client_training_s": state.client_training_s,
+            "outside_training_share": (
+                max(0.0, wall - state.client_training_s) / wall if wall else None
+            ),
             "coordinator_overhead_s": state.coordinator_overhead_s,
             "coordinator_overhead_share": state.coordinator_overhead_s / wall if wall else None,
             "aggregation_s": state.aggregation_s,

@@ -62,6 +62,9 @@ class RunState:
     """Seconds the roadside unit waited for local training (the clients' work)."""
     client_cpu_s: float = 0.0
     """CPU seconds of local training, summed over clients (independent of machine load)."""
+    client_training_s: float = 0.0
+    """Wall seconds of local training of the slowest client of each round, summed over
+    rounds: the part of a round no transport can save."""
     aggregation_s: float = 0.0
     communication_s: float = 0.0
     """Seconds spent sending the global model down (pickling and pipes)."""
@@ -157,6 +160,7 @@ class Coordinator:
                 state.local_training_s += time.perf_counter() - busy_before
                 state.dropped_clients.update(clients.dropped)
                 state.client_cpu_s += sum(u.cpu_time_s for u in updates)
+                state.client_training_s += max((u.wall_time_s for u in updates), default=0.0)
 
                 bytes_up = bytes_down = 0
                 if plan.aggregates:

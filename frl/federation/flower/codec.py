@@ -83,6 +83,7 @@ def update_to_parts(update: LocalUpdate) -> tuple[Arrays | None, Arrays, dict[st
         "num_steps": update.num_steps,
         "total_steps": update.total_steps,
         "cpu_time_s": update.cpu_time_s,
+        "wall_time_s": update.wall_time_s,
         "episodes": [dataclasses.asdict(e) for e in update.episodes],
     }
     return parameters, series, summary
@@ -103,4 +104,5 @@ def update_from_parts(
         losses={k: np.asarray(v, np.float32) for k, v in unprefixed(series, LOSS_PREFIX).items()},
         parameters=None if parameters is None else arrays_to_tensors(parameters),
         cpu_time_s=float(summary["cpu_time_s"]),
+        wall_time_s=float(summary.get("wall_time_s", 0.0)),
     )
