@@ -161,7 +161,7 @@ def train_rounds(
     """
     specs = build_client_specs(settings)
     if settings.backend == "flower":
-        from frl.federation.flower.runtime import train_rounds as flower_rounds
+        from frl.flower.runtime import train_rounds as flower_rounds
 
         return flower_rounds(settings, specs, run_dir, state, progress, on_round_end)
     purge_step = state.steps_per_client + 1 if state.steps_per_client else None

@@ -125,7 +125,7 @@ class FlowerSchema:
     """simulation (one machine) | deployment (SuperLink + one SuperNode per vehicle)."""
     superlink: Any = None
     """deployment: null starts a SuperLink and the SuperNodes on 127.0.0.1; "host:port"
-    submits to a running SuperLink whose SuperNodes run python -m frl.federation.flower.node."""
+    submits to a running SuperLink whose SuperNodes run python -m frl.flower.node."""
     accept_failures: bool = True
     """A vehicle that fails is dropped and the round goes on (fedavg only), as Flower's FedAvg."""
     min_clients: int = 2

@@ -17,7 +17,7 @@ def test_the_core_runs_without_flower_and_backend_flower_names_the_extra(tmp_pat
         sys.path.insert(0, {str(TESTS)!r})
 
         if __name__ == "__main__":
-            import frl.federation, frl.train, frl.federation.flower
+            import frl.federation, frl.train, frl.flower
             from train_helpers import compose_config
             from frl.train import train
             from frl.train_config import ConfigError, validate

@@ -18,7 +18,7 @@ task, averaged into one global model every ``interval`` steps."""
 BACKENDS: tuple[str, ...] = ("processes", "flower")
 """How clients run: ``processes`` = one spawned worker process per client (libsumo
 allows one SUMO per process); ``flower`` = the vehicles as Flower ClientApps and the
-roadside unit as a ServerApp (``pip install frl[flower]``; :mod:`frl.federation.flower`)."""
+roadside unit as a ServerApp (``pip install frl[flower]``; :mod:`frl.flower`)."""
 
 FLOWER_RUNTIMES: tuple[str, ...] = ("simulation", "deployment")
 """``simulation``: Flower's simulation runtime on this machine. ``deployment``: a

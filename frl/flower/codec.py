@@ -3,10 +3,10 @@
 Two encodings of the same content:
 
 - Flower messages carry arrays (numpy, serialised by Flower with ``allow_pickle=False``)
-  and JSON text in a ``ConfigRecord``; :mod:`frl.federation.flower.apps` builds them
+  and JSON text in a ``ConfigRecord``; :mod:`frl.flower.apps` builds them
   from the plain parts below.
 - The local channel between a ClientApp and its vehicle process carries the same parts
-  as frames (:mod:`frl.federation.flower.frames`).
+  as frames (:mod:`frl.flower.frames`).
 
 Nothing here imports Flower, so the vehicle process does not need it.
 """
@@ -26,7 +26,7 @@ from frl.agents import DDPGConfig
 from frl.envs import EnvConfig, GridConfig, RewardConfig, ScenarioConfig
 from frl.episodes import EpisodeRecord
 from frl.federation.client import ClientSpec, LocalUpdate
-from frl.federation.flower.frames import Arrays, prefixed, unprefixed
+from frl.flower.frames import Arrays, prefixed, unprefixed
 
 PARAMETER_PREFIX = "param/"
 LOSS_PREFIX = "loss/"

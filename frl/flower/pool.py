@@ -28,7 +28,9 @@ from flwr.serverapp import Grid
 from torch import Tensor
 
 from frl.federation.client import ClientSpec, LocalUpdate
-from frl.federation.flower.apps import (
+from frl.federation.pool import ProgressHook
+from frl.federation.workers import ClientFailure
+from frl.flower.apps import (
     METRICS,
     PARAMETERS,
     PARTITION_KEY,
@@ -38,13 +40,11 @@ from frl.federation.flower.apps import (
     record_to_arrays,
     request_content,
 )
-from frl.federation.flower.codec import (
+from frl.flower.codec import (
     spec_to_json,
     tensors_to_arrays,
     update_from_parts,
 )
-from frl.federation.pool import ProgressHook
-from frl.federation.workers import ClientFailure
 
 log = logging.getLogger("frl.flower")
 
@@ -292,7 +292,7 @@ def write_model(spec: ClientSpec, arrays: Mapping[str, Any], path: Path) -> None
 
     from frl.agents import DDPG
     from frl.envs import IntersectionEnv
-    from frl.federation.flower.codec import arrays_to_tensors
+    from frl.flower.codec import arrays_to_tensors
 
     env = IntersectionEnv(dataclasses.replace(spec.env, task=spec.task), spec.reward)
     agent = DDPG(env.observation_space, env.action_space, spec.agent, seed=spec.agent_seed)

@@ -12,7 +12,7 @@ Message types: ``train`` (local training), ``query.setup``, ``query.sync`` (glob
 and/or checkpoint), ``query.load``, ``query.model``.
 
 The ClientApp holds no state: it relays every message to its vehicle process
-(:mod:`frl.federation.flower.vehicle`), found through the node config
+(:mod:`frl.flower.vehicle`), found through the node config
 (``frl-vehicle-socket``, ``frl-vehicle-key``) or, in simulation, through a mapping
 given to :func:`make_client_app`.
 """
@@ -29,8 +29,8 @@ from flwr.app import Array, ArrayRecord, ConfigRecord, Context, Message, MetricR
 from flwr.clientapp import ClientApp
 from flwr.serverapp import Grid, ServerApp
 
-from frl.federation.flower.frames import Arrays, prefixed, unprefixed
-from frl.federation.flower.vehicle import (
+from frl.flower.frames import Arrays, prefixed, unprefixed
+from frl.flower.vehicle import (
     PARAMETERS_PREFIX,
     SERIES_PREFIX,
     VehicleEndpoint,
@@ -85,7 +85,7 @@ def node_endpoint(context: Context) -> VehicleEndpoint:
     if SOCKET_KEY not in config or AUTHKEY_KEY not in config:
         raise VehicleError(
             f"this SuperNode has no vehicle: its node config lacks {SOCKET_KEY} and "
-            f"{AUTHKEY_KEY}; start it with `python -m frl.federation.flower.node`"
+            f"{AUTHKEY_KEY}; start it with `python -m frl.flower.node`"
         )
     return VehicleEndpoint(str(config[SOCKET_KEY]), str(config[AUTHKEY_KEY]))
 
@@ -143,7 +143,7 @@ def make_client_app(endpoint_for: EndpointLookup = node_endpoint) -> ClientApp:
 
 
 client_app = make_client_app()
-"""The ClientApp of a SuperNode started by ``python -m frl.federation.flower.node``."""
+"""The ClientApp of a SuperNode started by ``python -m frl.flower.node``."""
 
 
 # ------------------------------------------------------------------ the roadside unit
@@ -154,6 +154,6 @@ config names (``run-dir``, written by ``python -m frl.train``)."""
 
 @server_app.main()
 def _deployment_main(grid: Grid, context: Context) -> None:
-    from frl.federation.flower.runtime import serve_run_dir
+    from frl.flower.runtime import serve_run_dir
 
     serve_run_dir(grid, str(context.run_config[RUN_DIR_KEY]))

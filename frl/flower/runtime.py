@@ -6,8 +6,8 @@
   over the network. With ``federation.flower.superlink`` unset they are started here on
   127.0.0.1 (:class:`LocalFederation`) and stopped afterwards; otherwise the run is
   submitted to that SuperLink, whose SuperNodes were started on the vehicles' hosts
-  with ``python -m frl.federation.flower.node``. Either way ``flwr run`` submits the
-  app in ``frl/federation/flower/app/``, and its ServerApp (:func:`serve_run_dir`)
+  with ``python -m frl.flower.node``. Either way ``flwr run`` submits the
+  app in ``frl/flower/app/``, and its ServerApp (:func:`serve_run_dir`)
   trains the run whose directory ``python -m frl.train`` prepared.
 
 Both end in the same :class:`~frl.federation.coordinator.Coordinator` as the
@@ -31,16 +31,16 @@ from typing import Any
 
 from frl.federation.client import ClientSpec
 from frl.federation.coordinator import STATE_FILE, Coordinator, RoundHook, RunState
-from frl.federation.flower.node import (
+from frl.federation.workers import ClientFailure
+from frl.fileio import read_json, write_json_atomic
+from frl.flower.node import (
     VehicleNode,
     flower_env,
     flower_executable,
     free_port,
     stop_processes,
 )
-from frl.federation.flower.vehicle import VehicleEndpoint, VehicleService
-from frl.federation.workers import ClientFailure
-from frl.fileio import read_json, write_json_atomic
+from frl.flower.vehicle import VehicleEndpoint, VehicleService
 from frl.train_config import TrainSettings
 
 log = logging.getLogger("frl.flower")
@@ -82,8 +82,8 @@ def run_roadside_unit(
     on_round_end: RoundHook | None = None,
 ) -> RunState:
     """The ServerApp's work: connect the vehicles, then the frl rounds over the grid."""
-    from frl.federation.flower.pool import FlowerClientPool
     from frl.federation.tensorboard import TrainingLogger
+    from frl.flower.pool import FlowerClientPool
     from frl.train import TB_DIR
 
     flower = settings.flower
@@ -118,7 +118,7 @@ def _simulate(
     from flwr.serverapp import ServerApp
     from flwr.simulation import run_simulation
 
-    from frl.federation.flower.apps import PARTITION_KEY, make_client_app
+    from frl.flower.apps import PARTITION_KEY, make_client_app
 
     threads = settings.threads_per_worker or _default_threads(len(specs))
     outcome: dict[str, Any] = {}

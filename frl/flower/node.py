@@ -1,6 +1,6 @@
 """A vehicle's host: its vehicle process and its Flower SuperNode, started and stopped together.
 
-    python -m frl.federation.flower.node --superlink RSU_HOST:9093 --partition-id 0 \\
+    python -m frl.flower.node --superlink RSU_HOST:9093 --partition-id 0 \\
         --num-partitions 3 [--state-dir frl-vehicle-state] [--insecure]
 
 ``--partition-id`` i makes this host the run's client i (``client0_left`` for 0 under
@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from frl.federation.flower.vehicle import VehicleService
+from frl.flower.vehicle import VehicleService
 
 
 def flower_executable(name: str) -> str:
@@ -120,7 +120,7 @@ class VehicleNode:
         self.close()
 
     def start(self) -> None:
-        from frl.federation.flower.apps import AUTHKEY_KEY, PARTITION_KEY, SOCKET_KEY
+        from frl.flower.apps import AUTHKEY_KEY, PARTITION_KEY, SOCKET_KEY
 
         self.service.start()
         endpoint = self.service.endpoint

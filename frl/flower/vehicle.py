@@ -8,7 +8,7 @@ each vehicle keeps them in its own long-lived process, this module's *vehicle se
 and the ClientApp only relays: it opens the service's Unix socket, forwards the request
 and returns the answer as the Flower reply.
 
-The local channel carries :func:`frl.federation.flower.codec.encode_frame` frames (JSON
+The local channel carries :func:`frl.flower.codec.encode_frame` frames (JSON
 and ``.npz``, no pickle) after ``multiprocessing``'s HMAC handshake with a random key.
 Requests are served one at a time, in order: a vehicle does one thing at a time.
 
@@ -37,7 +37,7 @@ import numpy as np
 
 # Light imports only: the ClientApp imports this module for every message. The vehicle's
 # own work (torch, SUMO) is imported in the vehicle process, by VehicleHost.
-from frl.federation.flower.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
+from frl.flower.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
 
 SERIES_PREFIX = "series/"
 PARAMETERS_PREFIX = "parameters/"
@@ -72,7 +72,7 @@ class VehicleHost:
         self.spec_json: str | None = None
 
     def handle(self, header: Mapping[str, Any], arrays: Arrays) -> tuple[dict[str, Any], Arrays]:
-        from frl.federation.flower.codec import (
+        from frl.flower.codec import (
             arrays_to_tensors,
             tensors_to_arrays,
             update_to_parts,
@@ -116,7 +116,7 @@ class VehicleHost:
             return {"client": self.client.name, "built": False}  # a repeated setup
         self.close()
         from frl.federation.client import VehicleClient
-        from frl.federation.flower.codec import spec_from_json
+        from frl.flower.codec import spec_from_json
 
         self.client = VehicleClient(spec_from_json(spec_json))
         self.run_key, self.spec_json = run_key, spec_json
