@@ -40,7 +40,7 @@ from frl.federation.coordinator import (
 from frl.federation.fedavg import state_nbytes  # noqa: F401  (re-exported for users)
 from frl.federation.plan import client_seeds
 from frl.federation.pool import ProcessClientPool
-from frl.federation.tensorboard import TrainingLogger
+from frl.federation.tensorboard import TrainingLogger, resume_purge_step
 from frl.fileio import read_json, write_json_atomic
 from frl.train_config import (
     ConfigError,
@@ -127,21 +127,8 @@ def train(cfg: DictConfig, on_round_end: RoundHook | None = None) -> dict[str, A
         if resuming and state_path.exists()
         else RunState()
     )
-    plan = settings.plan
     if not state.training_finished:
-        specs = build_client_specs(settings)
-        # A fresh start over a killed session's uncommitted events (resume=auto) drops them.
-        stale_events = (run_dir / TB_DIR).exists()
-        purge_step = state.steps_per_client + 1 if state.steps_per_client or stale_events else None
-        with (
-            TrainingLogger(run_dir / TB_DIR, purge_step=purge_step) as logger,
-            ProcessClientPool(
-                specs,
-                num_threads=settings.threads_per_worker,
-                timeout_s=settings.worker_timeout_s,
-            ) as pool,
-        ):
-            Coordinator(plan, pool, run_dir, logger, progress, on_round_end).run(state)
+        state = train_rounds(settings, run_dir, state, progress, on_round_end)
 
     results = training_results(settings, state, run_dir)
     results_path = run_dir / RESULTS_FILE
@@ -164,6 +151,36 @@ def train(cfg: DictConfig, on_round_end: RoundHook | None = None) -> dict[str, A
     return results
 
 
+def train_rounds(
+    settings: TrainSettings,
+    run_dir: Path,
+    state: RunState,
+    progress: bool = False,
+    on_round_end: RoundHook | None = None,
+) -> RunState:
+    """The round loop on ``federation.backend``, from ``state`` to the end; the final state.
+
+    Under ``flower`` with the deployment runtime the rounds run in the ServerApp's
+    process, so ``on_round_end`` is not called there.
+    """
+    specs = build_client_specs(settings)
+    if settings.backend == "flower":
+        from frl.flower.runtime import train_rounds as flower_rounds
+
+        return flower_rounds(settings, specs, run_dir, state, progress, on_round_end)
+    with (
+        TrainingLogger(
+            run_dir / TB_DIR, purge_step=resume_purge_step(run_dir / TB_DIR, state.steps_per_client)
+        ) as logger,
+        ProcessClientPool(
+            specs,
+            num_threads=settings.threads_per_worker,
+            timeout_s=settings.worker_timeout_s,
+        ) as pool,
+    ):
+        return Coordinator(settings.plan, pool, run_dir, logger, progress, on_round_end).run(state)
+
+
 def training_results(settings: TrainSettings, state: RunState, run_dir: Path) -> dict[str, Any]:
     """The training and communication sections of ``results.json``."""
     plan = settings.plan
@@ -176,6 +193,7 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
     wall = state.wall_time_s
     return {
         "scheme": plan.scheme,
+        "backend": settings.backend,
         "seed": settings.seed,
         "interval": plan.interval,
         "total_steps": plan.total_steps,
@@ -199,6 +217,10 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
             "seconds_per_round": wall / state.completed_rounds if state.completed_rounds else None,
             "local_training_s": state.local_training_s,
             "client_cpu_s": state.client_cpu_s,
+            "client_training_s": state.client_training_s,
+            "outside_training_share": (
+                max(0.0, wall - state.client_training_s) / wall if wall else None
+            ),
             "coordinator_overhead_s": state.coordinator_overhead_s,
             "coordinator_overhead_share": state.coordinator_overhead_s / wall if wall else None,
             "aggregation_s": state.aggregation_s,
@@ -208,6 +230,7 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
             "episodes": state.episodes,
             "collisions": state.collisions,
             "arrivals": state.arrivals,
+            "dropped_clients": state.dropped_clients,
             "final_step_reward": float(step_rewards[-tail:].mean()) if len(step_rewards) else None,
             "final_step_reward_definition": (
                 f"mean of train/step_reward over the last {FINAL_REWARD_FRACTION:.0%} of steps"

@@ -22,7 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 from frl.agents import DDPGConfig
 from frl.envs import TASKS, EnvConfig, GridConfig, RewardConfig, ScenarioConfig
 from frl.envs.config import REWARD_NAMES
-from frl.federation.plan import BACKENDS, FederationPlan
+from frl.federation.plan import BACKENDS, FLOWER_RUNTIMES, FederationPlan
 
 _ENV = EnvConfig()
 _SCENARIO = ScenarioConfig()
@@ -118,6 +118,23 @@ class RewardSchema:
 
 
 @dataclass
+class FlowerSchema:
+    """``federation.backend=flower``: the runtime and the failure policy (docs/flower.md)."""
+
+    runtime: str = "simulation"
+    """simulation (one machine) | deployment (SuperLink + one SuperNode per vehicle)."""
+    superlink: Any = None
+    """deployment: null starts a SuperLink and the SuperNodes on 127.0.0.1; "host:port"
+    submits to a running SuperLink whose SuperNodes run python -m frl.flower.node."""
+    accept_failures: bool = True
+    """A vehicle that fails is dropped and the round goes on (fedavg only), as Flower's FedAvg."""
+    min_clients: int = 2
+    """Fewest vehicles that must answer for the run to go on (fedavg)."""
+    connect_timeout_s: float = 300.0
+    """Longest wait for every vehicle's SuperNode to connect."""
+
+
+@dataclass
 class FederationSchema:
     """The scheme (:class:`frl.federation.FederationPlan`) and how clients run."""
 
@@ -129,7 +146,8 @@ class FederationSchema:
     weighting: str = "equal"
     """equal: Eq. (3); steps: weighted by the clients' steps in the round."""
     backend: str = "processes"
-    """processes: one spawned worker process per client (one SUMO each)."""
+    """processes: one spawned worker process per client (one SUMO each); flower: Flower."""
+    flower: FlowerSchema = field(default_factory=FlowerSchema)
     worker_timeout_s: float = 3600.0
     """Longest one worker call (a round of local training) may take before the run stops."""
     threads_per_worker: int = 0
@@ -172,6 +190,17 @@ def register_configs() -> None:
 
 # ------------------------------------------------------------------- validation
 @dataclass(frozen=True)
+class FlowerSettings:
+    """The validated ``federation.flower`` keys."""
+
+    runtime: str = "simulation"
+    superlink: str | None = None
+    accept_failures: bool = True
+    min_clients: int = 2
+    connect_timeout_s: float = 300.0
+
+
+@dataclass(frozen=True)
 class TrainSettings:
     """A validated configuration, as typed library objects."""
 
@@ -186,6 +215,7 @@ class TrainSettings:
     backend: str
     worker_timeout_s: float | None
     threads_per_worker: int | None
+    flower: FlowerSettings = field(default_factory=FlowerSettings)
 
     def eval_env(self, task: str) -> EnvConfig:
         """The test environment of ``task``: test traffic density (Section IV.B)."""
@@ -221,6 +251,7 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         value = data.get(key, 0)
         if not isinstance(value, int) or isinstance(value, bool) or value < 0:
             raise ConfigError(f"{key} must be a non-negative integer, got {value!r}")
+    flower = _flower_settings(federation)
     timeout = federation.get("worker_timeout_s", 3600.0)
     if timeout is not None and not timeout > 0:
         raise ConfigError(f"federation.worker_timeout_s must be positive, got {timeout!r}")
@@ -248,6 +279,15 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         ScenarioConfig(human_arrival_period_steps=period)  # range check
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
+    if (
+        federation.get("backend") == "flower"
+        and plan.aggregates
+        and flower.min_clients > len(plan.client_tasks)
+    ):
+        raise ConfigError(
+            f"federation.flower.min_clients={flower.min_clients} exceeds the "
+            f"{len(plan.client_tasks)} clients of the run"
+        )
     return TrainSettings(
         plan=plan,
         env=env_config,
@@ -260,7 +300,56 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         backend=federation.get("backend", "processes"),
         worker_timeout_s=timeout,
         threads_per_worker=threads or None,
+        flower=flower,
     )
+
+
+def _flower_settings(federation: dict[str, Any]) -> FlowerSettings:
+    """Check ``federation.flower``; with ``backend=flower``, also that Flower is installed."""
+    keys = dict(federation.get("flower") or {})
+    runtime = keys.get("runtime", "simulation")
+    if runtime not in FLOWER_RUNTIMES:
+        raise ConfigError(
+            f"unknown federation.flower.runtime {runtime!r}; choose one of "
+            f"{', '.join(FLOWER_RUNTIMES)}"
+        )
+    superlink = keys.get("superlink")
+    if superlink is not None and (not isinstance(superlink, str) or ":" not in superlink):
+        raise ConfigError(f"federation.flower.superlink must be host:port, got {superlink!r}")
+    min_clients = keys.get("min_clients", 2)
+    if not isinstance(min_clients, int) or isinstance(min_clients, bool) or min_clients < 1:
+        raise ConfigError(f"federation.flower.min_clients must be >= 1, got {min_clients!r}")
+    connect_timeout = keys.get("connect_timeout_s", 300.0)
+    if not connect_timeout > 0:
+        raise ConfigError(
+            f"federation.flower.connect_timeout_s must be positive, got {connect_timeout!r}"
+        )
+    if federation.get("backend") == "flower":
+        _require_flower(runtime)
+    return FlowerSettings(
+        runtime=runtime,
+        superlink=superlink,
+        accept_failures=bool(keys.get("accept_failures", True)),
+        min_clients=min_clients,
+        connect_timeout_s=float(connect_timeout),
+    )
+
+
+def _require_flower(runtime: str) -> None:
+    import importlib.util
+
+    try:
+        import flwr  # noqa: F401
+    except ImportError:
+        raise ConfigError(
+            "federation.backend=flower needs Flower, which is not installed: "
+            "pip install 'frl[flower]'"
+        ) from None
+    if runtime == "simulation" and importlib.util.find_spec("ray") is None:
+        raise ConfigError(
+            "federation.flower.runtime=simulation needs Ray (Flower's simulation engine): "
+            "pip install 'frl[flower]'"
+        )
 
 
 def _to_container(cfg: DictConfig | TrainSchema | dict[str, Any]) -> dict[str, Any]:

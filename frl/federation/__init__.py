@@ -5,6 +5,8 @@
 - :class:`WorkerPool` / :class:`ProcessClientPool`: one spawned process per client.
 - :class:`Coordinator`: the roadside unit's rounds, aggregation, logging, checkpoints.
 - :class:`FederationPlan`: the schemes ``central``, ``separate``, ``fedavg``.
+
+The Flower backend lives beside this package, in :mod:`frl.flower`.
 """
 
 from frl.federation.client import ClientSpec, LocalUpdate, VehicleClient

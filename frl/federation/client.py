@@ -84,6 +84,8 @@ class LocalUpdate:
     """The model upload (a subset of the agent's federated state), or None if not asked."""
     cpu_time_s: float = 0.0
     """CPU seconds the vehicle's process spent on this round (for the timing benchmarks)."""
+    wall_time_s: float = 0.0
+    """Wall seconds of this round's local training on the vehicle."""
 
 
 ProgressCallback = Callable[..., None]
@@ -140,7 +142,7 @@ class VehicleClient:
         if num_steps <= 0:
             raise ValueError(f"num_steps must be positive, got {num_steps}")
         agent, env = self.agent, self.env
-        cpu_started = time.process_time()
+        cpu_started, wall_started = time.process_time(), time.perf_counter()
         rewards = np.empty(num_steps, np.float32)
         losses = {name: np.full(num_steps, np.nan, np.float32) for name in LOSS_NAMES}
         episodes: list[EpisodeRecord] = []
@@ -190,6 +192,7 @@ class VehicleClient:
             losses=losses,
             parameters=self.get_parameters(include_targets) if upload else None,
             cpu_time_s=time.process_time() - cpu_started,
+            wall_time_s=time.perf_counter() - wall_started,
         )
 
     def _start_episode(self) -> None:

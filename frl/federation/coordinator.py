@@ -62,12 +62,17 @@ class RunState:
     """Seconds the roadside unit waited for local training (the clients' work)."""
     client_cpu_s: float = 0.0
     """CPU seconds of local training, summed over clients (independent of machine load)."""
+    client_training_s: float = 0.0
+    """Wall seconds of local training of the slowest client of each round, summed over
+    rounds: the part of a round no transport can save."""
     aggregation_s: float = 0.0
     communication_s: float = 0.0
     """Seconds spent sending the global model down (pickling and pipes)."""
     checkpoint_s: float = 0.0
     logging_s: float = 0.0
     round_times_s: list[float] = field(default_factory=list)
+    dropped_clients: dict[str, str] = field(default_factory=dict)
+    """Clients dropped after a failure (Flower backend, ``accept_failures``): name -> why."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -153,7 +158,9 @@ class Coordinator:
                     on_progress=on_progress if self.progress else None,
                 )
                 state.local_training_s += time.perf_counter() - busy_before
+                state.dropped_clients.update(clients.dropped)
                 state.client_cpu_s += sum(u.cpu_time_s for u in updates)
+                state.client_training_s += max((u.wall_time_s for u in updates), default=0.0)
 
                 bytes_up = bytes_down = 0
                 if plan.aggregates:
@@ -252,6 +259,7 @@ class Coordinator:
         if directory.exists():  # left by a session killed before it committed this round
             shutil.rmtree(directory)
         self.clients.save(directory)
+        state.dropped_clients.update(self.clients.dropped)  # a client may fail while saving
         _save_npy_atomic(self.run_dir / STEP_REWARDS_FILE, step_rewards)
         state.checkpoint = relative.as_posix()
         write_json_atomic(self.run_dir / STATE_FILE, state.to_dict())

@@ -15,9 +15,14 @@ SCHEMES: tuple[str, ...] = ("central", "separate", "fedavg")
 Sep-DDPG, one agent per task, never averaged. ``fedavg``: FedAvg-DDPG, one agent per
 task, averaged into one global model every ``interval`` steps."""
 
-BACKENDS: tuple[str, ...] = ("processes",)
+BACKENDS: tuple[str, ...] = ("processes", "flower")
 """How clients run: ``processes`` = one spawned worker process per client (libsumo
-allows one SUMO per process). A Flower backend can be added beside it."""
+allows one SUMO per process); ``flower`` = the vehicles as Flower ClientApps and the
+roadside unit as a ServerApp (``pip install frl[flower]``; :mod:`frl.flower`)."""
+
+FLOWER_RUNTIMES: tuple[str, ...] = ("simulation", "deployment")
+"""``simulation``: Flower's simulation runtime on this machine. ``deployment``: a
+SuperLink and one SuperNode per vehicle, separate processes talking over the network."""
 
 _SEED_HALF_RANGE = 2**30
 

@@ -20,6 +20,9 @@ class ClientPool(Protocol):
     """What the roadside unit needs from its clients, whatever carries the messages."""
 
     names: list[str]
+    """The clients in the run, in order."""
+    dropped: dict[str, str]
+    """Clients dropped after a failure (name -> reason); they are no longer in ``names``."""
 
     def train(
         self,
@@ -59,6 +62,7 @@ class ProcessClientPool:
     ) -> None:
         self.specs = list(specs)
         self.names = [spec.name for spec in self.specs]
+        self.dropped: dict[str, str] = {}  # a failed worker stops the run instead
         self.workers = WorkerPool(
             [(spec.name, functools.partial(VehicleClient, spec)) for spec in self.specs],
             num_threads=num_threads,

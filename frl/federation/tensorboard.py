@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -135,3 +136,15 @@ def _hparam_value(value: Any) -> bool | int | float | str:
     if isinstance(value, (list, tuple)):
         return "x".join(str(v) for v in value) if value else "-"
     return str(value)
+
+
+def resume_purge_step(log_dir: str | os.PathLike[str], committed_steps: int) -> int | None:
+    """The ``purge_step`` for a session that continues a run at ``committed_steps``.
+
+    Events past the last committed round come from a killed session and are dropped, on
+    resume and on a fresh start over such a session's leftovers (``resume=auto`` restarts
+    a run killed before its first commit); ``None`` where there is nothing to drop.
+    """
+    if committed_steps or Path(log_dir).exists():
+        return committed_steps + 1
+    return None

@@ -101,12 +101,14 @@ def _exit_with_parent() -> None:
         sys.exit(143)
 
 
-def _worker_main(conn: Connection, name: str, factory: Callable[[], Any], num_threads: int) -> None:
-    """Entry point of a worker process: build the object, then serve calls until told to stop."""
+def prepare_worker_process(num_threads: int) -> None:
+    """Set up a freshly spawned client process: threads, signals, death with its parent.
+
+    The parent handles Ctrl-C and stops its workers; SIGTERM unwinds so that ``finally``
+    blocks run (a TraCI backend's SUMO child is stopped with them).
+    """
     for var in _THREAD_ENV_VARS:
         os.environ[var] = str(num_threads)
-    # The coordinator handles Ctrl-C and stops the workers; SIGTERM unwinds so that
-    # ``close()`` below runs (a TraCI backend's SUMO child is stopped with it).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     _exit_with_parent()
@@ -115,6 +117,11 @@ def _worker_main(conn: Connection, name: str, factory: Callable[[], Any], num_th
     torch.set_num_threads(num_threads)
     with contextlib.suppress(RuntimeError):  # already set: harmless
         torch.set_num_interop_threads(1)
+
+
+def _worker_main(conn: Connection, name: str, factory: Callable[[], Any], num_threads: int) -> None:
+    """Entry point of a worker process: build the object, then serve calls until told to stop."""
+    prepare_worker_process(num_threads)
     hosted: Any = None
     try:
         try:

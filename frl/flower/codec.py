@@ -1,0 +1,108 @@
+"""What crosses the wire between a vehicle and the roadside unit, without pickle.
+
+Two encodings of the same content:
+
+- Flower messages carry arrays (numpy, serialised by Flower with ``allow_pickle=False``)
+  and JSON text in a ``ConfigRecord``; :mod:`frl.flower.apps` builds them
+  from the plain parts below.
+- The local channel between a ClientApp and its vehicle process carries the same parts
+  as frames (:mod:`frl.flower.frames`).
+
+Nothing here imports Flower, so the vehicle process does not need it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from frl.agents import DDPGConfig
+from frl.envs import EnvConfig, GridConfig, RewardConfig, ScenarioConfig
+from frl.episodes import EpisodeRecord
+from frl.federation.client import ClientSpec, LocalUpdate
+from frl.flower.frames import Arrays, prefixed, unprefixed
+
+PARAMETER_PREFIX = "param/"
+LOSS_PREFIX = "loss/"
+STEP_REWARDS = "step_rewards"
+
+
+# ------------------------------------------------------------------ client specs
+def spec_to_json(spec: ClientSpec) -> str:
+    """A :class:`ClientSpec` as JSON text (the vehicle builds its env and agent from it)."""
+    data = dataclasses.asdict(spec)
+    data["agent"] = spec.agent.to_dict()
+    return json.dumps(data, sort_keys=True)
+
+
+def spec_from_json(text: str) -> ClientSpec:
+    """Inverse of :func:`spec_to_json`; unknown or missing fields raise ``TypeError``."""
+    data = json.loads(text)
+    env = dict(data.pop("env"))
+    grid = dict(env.pop("grid"))
+    for name in ("lateral_range", "longitudinal_range"):
+        grid[name] = tuple(grid[name])
+    return ClientSpec(
+        env=EnvConfig(
+            scenario=ScenarioConfig(**env.pop("scenario")), grid=GridConfig(**grid), **env
+        ),
+        reward=RewardConfig(**data.pop("reward")),
+        agent=DDPGConfig.from_dict(data.pop("agent")),
+        **data,
+    )
+
+
+# ------------------------------------------------------------------ parameters
+def tensors_to_arrays(parameters: Mapping[str, Tensor]) -> Arrays:
+    """CPU numpy copies of a parameter dict, keys unchanged."""
+    return {key: value.detach().cpu().numpy().copy() for key, value in parameters.items()}
+
+
+def arrays_to_tensors(arrays: Mapping[str, np.ndarray]) -> dict[str, Tensor]:
+    return {key: torch.from_numpy(np.array(value, copy=True)) for key, value in arrays.items()}
+
+
+# ------------------------------------------------------------------ updates
+def update_to_parts(update: LocalUpdate) -> tuple[Arrays | None, Arrays, dict[str, Any]]:
+    """``(parameters, series, summary)`` of a :class:`LocalUpdate`.
+
+    ``parameters`` is the model upload (or None), ``series`` the per-step rewards and
+    losses, ``summary`` the scalars and episode records as plain JSON types.
+    """
+    parameters = None if update.parameters is None else tensors_to_arrays(update.parameters)
+    series = {STEP_REWARDS: np.asarray(update.step_rewards, np.float32)}
+    series.update(prefixed(update.losses, LOSS_PREFIX))
+    summary = {
+        "client": update.client,
+        "num_steps": update.num_steps,
+        "total_steps": update.total_steps,
+        "cpu_time_s": update.cpu_time_s,
+        "wall_time_s": update.wall_time_s,
+        "episodes": [dataclasses.asdict(e) for e in update.episodes],
+    }
+    return parameters, series, summary
+
+
+def update_from_parts(
+    parameters: Mapping[str, np.ndarray] | None,
+    series: Mapping[str, np.ndarray],
+    summary: Mapping[str, Any],
+) -> LocalUpdate:
+    """Inverse of :func:`update_to_parts`."""
+    return LocalUpdate(
+        client=str(summary["client"]),
+        num_steps=int(summary["num_steps"]),
+        total_steps=int(summary["total_steps"]),
+        step_rewards=np.asarray(series[STEP_REWARDS], np.float32),
+        episodes=[EpisodeRecord(**e) for e in summary["episodes"]],
+        losses={k: np.asarray(v, np.float32) for k, v in unprefixed(series, LOSS_PREFIX).items()},
+        parameters=None if parameters is None else arrays_to_tensors(parameters),
+        cpu_time_s=float(summary["cpu_time_s"]),
+        wall_time_s=float(summary.get("wall_time_s", 0.0)),
+    )

@@ -1,0 +1,156 @@
+"""``federation.backend=flower``: parity with the in-process backend under both Flower
+runtimes, a vehicle killed mid-round, the failure policy, and no process left behind.
+
+Skipped (not failed) where Flower is not installed: ``pip install -e '.[flower]'``.
+"""
+
+import json
+import multiprocessing
+import os
+import signal
+from pathlib import Path
+
+import pytest
+import torch
+from train_helpers import compose_config
+
+pytest.importorskip("flwr")
+
+from frl.federation import ClientFailure
+from frl.flower.runtime import TOKEN_VAR
+from frl.train import train
+from frl.train_config import ConfigError, validate
+
+TWO_ROUNDS = ["total_steps=80", "interval=40", "eval_episodes=0"]
+FLOWER = ["federation.backend=flower"]
+
+
+def _global_model(run_dir: Path) -> dict[str, torch.Tensor]:
+    networks = torch.load(run_dir / "models" / "global.pt", weights_only=True)["networks"]
+    return {f"{net}.{k}": v for net, state in networks.items() for k, v in state.items()}
+
+
+def _assert_same_model(a: Path, b: Path) -> None:
+    first, second = _global_model(a), _global_model(b)
+    assert first.keys() == second.keys()
+    for key in first:
+        torch.testing.assert_close(first[key], second[key], rtol=0, atol=1e-6, msg=key)
+
+
+def _flower_processes_left() -> list[int]:
+    """Processes still carrying the local federation's marker, whatever their token."""
+    left = []
+    needle = f"{TOKEN_VAR}=".encode()
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if any(v.startswith(needle) for v in (entry / "environ").read_bytes().split(b"\0")):
+                    left.append(int(entry.name))
+            except OSError:
+                pass
+    return left
+
+
+@pytest.fixture(scope="module")
+def in_process_run(tmp_path_factory):
+    """The reference: two rounds of FedAvg-DDPG on the in-process backend."""
+    run_dir = tmp_path_factory.mktemp("processes") / "run"
+    train(compose_config(run_dir, TWO_ROUNDS))
+    return run_dir
+
+
+def test_simulation_matches_the_in_process_backend(in_process_run, tmp_path):
+    run_dir = tmp_path / "run"
+
+    results = train(compose_config(run_dir, [*TWO_ROUNDS, *FLOWER, "eval_episodes=1"]))
+
+    _assert_same_model(in_process_run, run_dir)
+    reference = json.loads((in_process_run / "results.json").read_text())
+    assert results["backend"] == "flower" and reference["backend"] == "processes"
+    assert results["communication"] == reference["communication"]
+    assert results["training"]["final_step_reward"] == reference["training"]["final_step_reward"]
+    assert results["training"]["episodes"] == reference["training"]["episodes"]
+    assert set(results) == set(reference) | {"evaluation", "evaluation_wall_time_s"}
+    assert results["evaluation"]["per_task"]["left"]["episodes"] == 1
+    assert sorted(os.listdir(run_dir / "tb")) and (run_dir / "state.json").exists()
+    assert multiprocessing.active_children() == []
+
+
+@pytest.mark.slow
+def test_deployment_on_loopback_matches_and_leaves_no_process(in_process_run, tmp_path):
+    """A SuperLink and three SuperNodes (each with its vehicle process) on 127.0.0.1."""
+    run_dir = tmp_path / "run"
+
+    results = train(
+        compose_config(run_dir, [*TWO_ROUNDS, *FLOWER, "federation.flower.runtime=deployment"])
+    )
+
+    assert results["rounds"] == 2 and results["training"]["dropped_clients"] == {}
+    _assert_same_model(in_process_run, run_dir)
+    logs = sorted(p.name for p in (run_dir / "flower").iterdir())
+    assert logs == [
+        "flwr_run.log", "superlink.log", "supernode0.log", "supernode1.log", "supernode2.log"
+    ]  # fmt: skip
+    assert _flower_processes_left() == []
+    assert multiprocessing.active_children() == []
+
+
+def test_a_vehicle_killed_mid_round_is_dropped_and_the_run_goes_on(tmp_path):
+    run_dir = tmp_path / "run"
+    cfg = compose_config(run_dir, [*TWO_ROUNDS, *FLOWER, "federation.flower.min_clients=2"])
+    victims = []
+
+    def kill_before_round_two(state):  # round 2 then finds the vehicle gone
+        if state.completed_rounds == 1:
+            victim = next(
+                p for p in multiprocessing.active_children() if p.name.endswith("client1_straight")
+            )
+            victims.append(victim.pid)
+            os.kill(victim.pid, signal.SIGKILL)
+
+    results = train(cfg, on_round_end=kill_before_round_two)
+
+    assert victims and results["rounds"] == 2
+    dropped = results["training"]["dropped_clients"]
+    assert list(dropped) == ["client1_straight"] and dropped["client1_straight"].startswith("train")
+    assert results["communication"]["uploads"] == 3 + 2  # round 2 averaged the other two
+    assert (run_dir / "models" / "global.pt").exists()
+    state = json.loads((run_dir / "state.json").read_text())
+    assert list(state["dropped_clients"]) == ["client1_straight"]
+    assert multiprocessing.active_children() == []
+
+
+def test_the_failure_policy_stops_or_drops_as_configured(tmp_path):
+    from train_helpers import tiny_spec
+
+    from frl.flower.pool import FlowerClientPool
+
+    specs = [tiny_spec(i, task) for i, task in enumerate(["left", "straight", "right"])]
+
+    def pool(**policy):
+        return FlowerClientPool(None, specs, tmp_path, "run", **policy)
+
+    strict = pool(accept_failures=False)
+    with pytest.raises(ClientFailure, match=r"client1_straight failed: boom(.|\n)*accept_failures"):
+        strict._handle_failures("train", {1: "boom"})
+
+    tolerant = pool(accept_failures=True, min_clients=2)
+    tolerant._handle_failures("train", {1: "boom"})
+    assert tolerant.names == ["client0_left", "client2_right"]
+    assert tolerant.dropped == {"client1_straight": "train: boom"}
+    with pytest.raises(ClientFailure, match="only 1 vehicles remain, fewer than min_clients=2"):
+        tolerant._handle_failures("train", {2: "gone"})
+
+    separate = pool(accept_failures=True, aggregates=False)
+    with pytest.raises(ClientFailure, match="does not aggregate"):
+        separate._handle_failures("train", {0: "boom"})
+
+
+def test_flower_settings_are_checked_before_anything_starts():
+    with pytest.raises(ConfigError, match="runtime"):
+        validate(compose_config(None, [*FLOWER, "federation.flower.runtime=cloud"]))
+    with pytest.raises(ConfigError, match="min_clients=4 exceeds the 3 clients"):
+        validate(compose_config(None, [*FLOWER, "federation.flower.min_clients=4"]))
+    with pytest.raises(ConfigError, match="host:port"):
+        validate(compose_config(None, [*FLOWER, "federation.flower.superlink=nowhere"]))
+    assert validate(compose_config(None, FLOWER)).flower.runtime == "simulation"

@@ -1,0 +1,63 @@
+"""The Flower backend's wire formats (no Flower needed): specs, updates and local frames."""
+
+import io
+
+import numpy as np
+import pytest
+import torch
+from train_helpers import tiny_spec
+
+from frl.episodes import EpisodeRecord
+from frl.federation.client import LocalUpdate
+from frl.flower.codec import (
+    spec_from_json,
+    spec_to_json,
+    update_from_parts,
+    update_to_parts,
+)
+from frl.flower.frames import decode_frame, encode_frame
+
+
+def test_a_client_spec_survives_json():
+    spec = tiny_spec(2, "right", seed=7)
+
+    assert spec_from_json(spec_to_json(spec)) == spec
+
+
+def test_a_local_update_survives_its_parts():
+    update = LocalUpdate(
+        client="client1_straight",
+        num_steps=3,
+        total_steps=83,
+        step_rewards=np.array([0.1, -0.2, 0.3], np.float32),
+        episodes=[EpisodeRecord("straight", 1.5, False, True, False, 40, 82)],
+        losses={"critic_loss": np.array([np.nan, 0.5, 0.25], np.float32)},
+        parameters={"actor.layers.0.weight": torch.arange(6.0).reshape(2, 3)},
+        cpu_time_s=0.75,
+    )
+
+    parameters, series, summary = update_to_parts(update)
+    back = update_from_parts(parameters, series, summary)
+
+    assert back.client == update.client and back.num_steps == 3 and back.total_steps == 83
+    assert back.episodes == update.episodes and back.cpu_time_s == 0.75
+    np.testing.assert_array_equal(back.step_rewards, update.step_rewards)
+    np.testing.assert_array_equal(back.losses["critic_loss"], update.losses["critic_loss"])
+    assert torch.equal(back.parameters["actor.layers.0.weight"], torch.arange(6.0).reshape(2, 3))
+
+
+def test_a_frame_carries_json_and_arrays_without_pickle():
+    arrays = {"param/a.weight": np.ones((2, 2), np.float32), "series/step_rewards": np.zeros(3)}
+
+    header, back = decode_frame(encode_frame({"op": "train", "num_steps": 3}, arrays))
+
+    assert header == {"op": "train", "num_steps": 3}
+    assert set(back) == set(arrays)
+    np.testing.assert_array_equal(back["param/a.weight"], arrays["param/a.weight"])
+    with pytest.raises(ValueError):  # object arrays would need pickle: refused on both ends
+        encode_frame({}, {"x": np.array([{"a": 1}], dtype=object)})
+    pickled = io.BytesIO()
+    np.savez(pickled, x=np.array([{"a": 1}], dtype=object))
+    frame = encode_frame({"op": "x"}) + pickled.getvalue()
+    with pytest.raises(ValueError, match="pickle"):
+        decode_frame(frame)
