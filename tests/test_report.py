@@ -262,3 +262,11 @@ def test_export_records_the_versions_the_run_trained_with(root, tmp_path):
     exported = load_run(tmp_path / "fedavg-seed2")
     assert exported.git_commit == "feedbeef"  # not results.json's commit at the run's end
     assert not export_if_stale(run_dir, tmp_path / "fedavg-seed2")  # current: not redone
+
+
+def test_reward_gain_is_relative_only_over_a_positive_baseline():
+    from frl.report.markdown import _reward_gain
+
+    assert _reward_gain(6.0, 5.0) == "+20.00%"
+    assert _reward_gain(-2.46, -0.77) == "-1.69 (difference: baseline <= 0)"
+    assert _reward_gain(float("nan"), 1.0) == "–"

@@ -129,6 +129,16 @@ def _pct_change(new: float, old: float) -> str:
     return f"{(new - old) / abs(old) * 100:+.2f}%"
 
 
+def _reward_gain(new: float, old: float) -> str:
+    """Relative gain over a positive baseline reward; the plain difference otherwise, since
+    a percentage of a negative reward reads backwards."""
+    if not (np.isfinite(new) and np.isfinite(old)):
+        return "–"
+    if old > 0:
+        return _pct_change(new, old)
+    return f"{new - old:+.2f} (difference: baseline <= 0)"
+
+
 def _image(path: str | None, alt: str) -> str:
     return f"![{alt}]({path})\n\n" if path else ""
 
@@ -221,13 +231,13 @@ def fig4_block(curves: dict[str, SchemeCurves], settings: CurveSettings, image: 
                 SCHEME_LABELS[other],
                 speed,
                 f"+{PAPER_SPEEDUP[other]:.2f}%",
-                _pct_change(fed.final_reward.mean, o.final_reward.mean),
+                _reward_gain(fed.final_reward.mean, o.final_reward.mean),
                 f"+{PAPER_FINAL_GAIN:.2f}%",
             ]
         )
     text += "\n\nFedAvg-DDPG against each baseline (speed-up: the baseline's crossing step of "
     text += "the mean curve over FedAvg's, minus 1; gain: final reward of FedAvg over the "
-    text += "baseline's, minus 1):\n\n"
+    text += "baseline's, minus 1, where the baseline's is positive):\n\n"
     text += table(
         ["baseline", "speed-up (ours)", "paper", "final-reward gain (ours)", "paper"], comparisons
     )
