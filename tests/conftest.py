@@ -1,9 +1,11 @@
-"""Shared test set-up: generated scenarios go to a per-session cache directory."""
+"""Shared test set-up: a per-session scenario cache, and one torch thread on request."""
 
 import os
 import tempfile
+from collections.abc import Iterator
 
 import pytest
+import torch
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -17,3 +19,13 @@ def _scenario_cache():
         os.environ.pop("FRL_CACHE_DIR", None)
     else:
         os.environ["FRL_CACHE_DIR"] = previous
+
+
+@pytest.fixture
+def one_torch_thread() -> Iterator[None]:
+    """Small networks run fastest on one thread; it also keeps OpenMP threads from
+    spinning against other processes on a shared CI machine."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)

@@ -1,6 +1,5 @@
 """DDPG agent: acting, bootstrapping, determinism, federated state and checkpoints."""
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -15,14 +14,7 @@ ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
 SMALL = DDPGConfig(hidden_sizes=(32, 16), buffer_size=500, learning_starts=20, batch_size=8)
 
 
-@pytest.fixture(autouse=True)
-def _one_torch_thread() -> Iterator[None]:
-    """Small networks run fastest on one thread; it also keeps OpenMP threads from
-    spinning against other processes on a shared CI machine."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def grid_obs(rng: np.random.Generator) -> np.ndarray:

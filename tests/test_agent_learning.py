@@ -6,24 +6,13 @@ learning here also depends on truncated transitions bootstrapping. Seeds 0-5 all
 about -1200 and the threshold is -400.
 """
 
-from collections.abc import Iterator
-
 import gymnasium as gym
 import numpy as np
 import pytest
-import torch
 
 from frl.agents import DDPG, DDPGConfig
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread() -> Iterator[None]:
-    """Small networks run fastest on one thread; it also keeps OpenMP threads from
-    spinning against other processes on a shared CI machine."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.mark.slow

@@ -117,16 +117,16 @@ def plot_fig6(points: list[IntervalPoint], settings: CurveSettings, path: Path) 
     figure, axis = plt.subplots(figsize=(7.5, 4.5))
     intervals = np.array([p.interval for p in points], dtype=float)
     final = np.array([p.final_reward.mean for p in points])
+    half = np.array([_err(p.final_reward) for p in points])
     axis.errorbar(
         intervals,
         final,
-        yerr=[_err(p.final_reward) for p in points],
+        yerr=half,
         marker="o",
         capsize=3,
         color="tab:green",
         label=f"training reward at the end (last {settings.episode_window} episodes)",
     )
-    half = np.array([_err(p.final_reward) for p in points])
     axis.fill_between(intervals, final - half, final + half, color="tab:green", alpha=0.15)
     test = np.array([_val(p.test_reward) for p in points])
     if np.isfinite(test).any():
