@@ -245,8 +245,42 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
     }
 
 
+# What decides a run's behaviour, relative to the checkout's root; see git_state().
+RUN_AFFECTING_PATHS = ("frl", "conf", "pyproject.toml", "constraints.txt")
+
+
+def git_state(package_dir: Path) -> tuple[str | None, bool | None]:
+    """The commit of the checkout that holds ``package_dir``, and whether its code differs.
+
+    Dirty means frl/, conf/ or the install files differ from the commit, untracked files
+    there included (a new module changes a run as much as an edit). Exported results and
+    reports written into docs/ during a sweep do not count. ``(None, None)`` when the
+    package is not the ``frl/`` of a git checkout (an installed wheel, or a venv that
+    merely sits inside some other repository).
+    """
+
+    def git(*args: str) -> str | None:
+        with contextlib.suppress(OSError, subprocess.SubprocessError):
+            return subprocess.run(
+                ["git", *args],
+                cwd=package_dir,
+                capture_output=True,
+                text=True,
+                timeout=5,
+                check=True,
+            ).stdout.strip()
+        return None
+
+    root = git("rev-parse", "--show-toplevel")
+    if root is None or Path(root).resolve() / "frl" != package_dir.resolve():
+        return None, None
+    commit = git("rev-parse", "HEAD")
+    changes = git("-C", root, "status", "--porcelain", "--", *RUN_AFFECTING_PATHS)
+    return commit, None if commit is None or changes is None else bool(changes)
+
+
 def versions() -> dict[str, Any]:
-    """Package, SUMO, torch and Python versions (and the git commit, if any)."""
+    """Package, SUMO, torch and Python versions, and the git state (see git_state)."""
     import torch
 
     def dist(name: str) -> str | None:
@@ -255,24 +289,11 @@ def versions() -> dict[str, Any]:
         except importlib.metadata.PackageNotFoundError:
             return None
 
-    def git(*args: str) -> str | None:
-        with contextlib.suppress(OSError, subprocess.SubprocessError):
-            return subprocess.run(
-                ["git", *args],
-                cwd=Path(frl.__file__).parent,
-                capture_output=True,
-                text=True,
-                timeout=5,
-                check=True,
-            ).stdout.strip()
-        return None
-
-    commit = git("rev-parse", "HEAD")
-    changes = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    commit, dirty = git_state(Path(frl.__file__).parent)
     return {
         "frl": frl.__version__,
         "git_commit": commit,
-        "git_dirty": None if changes is None else bool(changes),
+        "git_dirty": dirty,
         "torch": torch.__version__,
         "numpy": np.__version__,
         "sumo": dist("eclipse-sumo"),
