@@ -35,6 +35,7 @@ def make_run(
     evaluation: dict | None = None,
     total_bytes: int = 0,
     wall_time_s: float = 60.0,
+    learning_starts: int = 0,
 ) -> Path:
     """A finished run. ``episodes``: per client, (end step, return) pairs."""
     clients = (
@@ -62,6 +63,7 @@ def make_run(
         "eval_episodes": 100 if evaluation else 0,
         "reward": REWARDS[reward],
         "federation": {"scheme": scheme},
+        "agent": {"learning_starts": learning_starts},
     }
     (run_dir / "config.yaml").write_text(yaml.safe_dump(config))
     write_json_atomic(run_dir / "state.json", {"training_finished": True})

@@ -139,6 +139,34 @@ def test_fig4_threshold_steps_and_final_rewards_match_hand_computation(root):
     assert np.isnan(fedavg.reward_mean[:9]).all() and fedavg.reward_mean[9] == 5.0
 
 
+def test_a_lucky_episode_during_the_warm_up_is_not_a_crossing(tmp_path):
+    # window 2: 6 (steps 5-9, one random-action episode), 4 (10-14), 5 (15-19), 8 (20)
+    rows = [(5, 6.0), (10, 2.0), (15, 8.0), (20, 8.0)]
+    for seed, learning_starts in ((0, 0), (1, 10)):
+        make_run(
+            tmp_path / "fig4" / f"central-seed{seed}",
+            "central",
+            seed,
+            episodes={"client0_random": rows},
+            learning_starts=learning_starts,
+        )
+
+    central = aggregate.fig4(collect(tmp_path), SETTINGS)["central"]
+
+    assert central.crossings == [5, 20]
+    assert central.mean_curve_crossing == 20  # the later warm-up of the two counts
+
+
+def test_a_resumed_runs_wall_time_counts_every_session_and_the_test(tmp_path):
+    run_dir = make_run(tmp_path / "fig4" / "fedavg-seed0", "fedavg", 0, wall_time_s=700.0)
+    results = json.loads((run_dir / "results.json").read_text())
+    # The training loop summed over two sessions; the job itself was only the second.
+    results.update(job_wall_time_s=400.0, evaluation_wall_time_s=30.0)
+    write_json_atomic(run_dir / "results.json", results)
+
+    assert load_run(run_dir).wall_time_s == 730.0
+
+
 def test_fig6_borrows_the_fig4_interval_and_fig3_the_paper_reward(root):
     collection = collect(root)
 

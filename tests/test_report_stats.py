@@ -66,3 +66,10 @@ def test_episode_return_curve_is_the_trailing_mean_of_ended_episodes():
 def test_first_crossing_is_one_based_and_none_if_never():
     assert first_crossing(np.array([np.nan, 5.0, 6.0, 7.0]), 6.0) == 3
     assert first_crossing(np.array([1.0, 2.0]), 6.0) is None
+
+
+def test_first_crossing_counts_only_steps_after_the_given_one():
+    curve = np.array([6.0, 1.0, 6.5, 7.0])
+    assert first_crossing(curve, 6.0, after=1) == 3
+    assert first_crossing(curve, 6.0, after=3) == 4
+    assert first_crossing(curve, 6.0, after=4) is None

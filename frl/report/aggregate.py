@@ -105,7 +105,12 @@ def scheme_curves(runs: list[RunRecord], settings: CurveSettings) -> SchemeCurve
     )
     reward_mean, reward_half = band(rewards)
     step_mean, step_half = band(steps_smoothed)
-    crossings = [first_crossing(curve, settings.threshold) for curve in rewards]
+    # Before learning starts the actions are random: one lucky episode in a still short
+    # window is not the agent reaching the threshold.
+    crossings = [
+        first_crossing(curve, settings.threshold, after=run.learning_starts)
+        for run, curve in zip(runs, rewards, strict=True)
+    ]
     crossed = [c for c in crossings if c is not None]
     finals = [float(curve[-1]) for curve in rewards if np.isfinite(curve[-1])]
     final_steps = [r.results["training"].get("final_step_reward") for r in runs]
@@ -120,7 +125,9 @@ def scheme_curves(runs: list[RunRecord], settings: CurveSettings) -> SchemeCurve
         step_half=step_half,
         crossings=crossings,
         crossing=mean_ci(crossed) if crossed else None,
-        mean_curve_crossing=first_crossing(reward_mean, settings.threshold),
+        mean_curve_crossing=first_crossing(
+            reward_mean, settings.threshold, after=max(r.learning_starts for r in runs)
+        ),
         final_reward=mean_ci(finals) if finals else Estimate(float("nan"), None, 0),
         final_step_reward=mean_ci(final_steps) if final_steps else None,
     )

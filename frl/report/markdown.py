@@ -147,7 +147,8 @@ def _image(path: str | None, alt: str) -> str:
 def method_block(collection: Collection, settings: CurveSettings) -> str:
     level = f"{CONFIDENCE:.0%}"
     return f"""- Source: `{collection.root}`, {collection.count} finished run(s); the runs
-  table at the end gives each one's seed, wall time and commit.
+  table at the end gives each one's seed, wall time (training, summed over the sessions
+  of a resumed run, plus testing) and commit.
 - Every number is a mean over seeds with a {level} confidence interval from the
   t distribution with n-1 degrees of freedom (`mean ± half-width`); `(n=1)`: one seed,
   no interval. `–`: no data; "{NOT_RUN}": the runs do not exist yet.
@@ -155,7 +156,9 @@ def method_block(collection: Collection, settings: CurveSettings) -> str:
   {settings.episode_window} training episodes (Stable-Baselines3's `ep_rew_mean`, the
   paper's tool), averaged over the agents; the paper's reward scale (a clean pass scores
   about 6.7). "First step >= {settings.threshold:g}" is the first step at which this curve
-  reaches {settings.threshold:g}; "final" is its value at the last step. The per-step
+  reaches {settings.threshold:g}, counted only after the warm-up (`agent.learning_starts`
+  steps of random actions, 1,000 in Table II), where a window of one or two lucky
+  episodes can reach it; "final" is its value at the last step. The per-step
   `train/step_reward` ({settings.step_window}-step moving average) is plotted beside it.
 - Test metrics (Figs. 3 and 5): 100 episodes per task after training, exploration off.
   "Travel time (all)" counts every episode to its end, collisions and time-outs

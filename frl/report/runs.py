@@ -102,10 +102,18 @@ class RunRecord:
         return (self.results.get("versions") or {}).get("git_commit")
 
     @property
+    def learning_starts(self) -> int:
+        """Steps of warm-up before the agents' first update (0 if the config has none)."""
+        return int((self.config.get("agent") or {}).get("learning_starts", 0))
+
+    @property
     def wall_time_s(self) -> float | None:
-        """The whole command if recorded, else the training loop."""
-        wall = self.results.get("job_wall_time_s")
-        return wall if wall is not None else self.results.get("training", {}).get("wall_time_s")
+        """Training plus test time. Training time is summed over every session of a resumed
+        run; the job's own wall time would count only the last session."""
+        training = self.results.get("training", {}).get("wall_time_s")
+        if training is None:
+            return self.results.get("job_wall_time_s")
+        return training + self.results.get("evaluation_wall_time_s", 0.0)
 
 
 def is_finished(run_dir: Path) -> bool:

@@ -118,7 +118,8 @@ def episode_return_curve(
     return curve
 
 
-def first_crossing(curve: np.ndarray, threshold: float) -> int | None:
-    """The first step (1-based) at which ``curve`` reaches ``threshold``; None if never."""
-    hits = np.flatnonzero(np.asarray(curve) >= threshold)
-    return int(hits[0]) + 1 if hits.size else None
+def first_crossing(curve: np.ndarray, threshold: float, after: int = 0) -> int | None:
+    """The first step (1-based) later than step ``after`` at which ``curve`` reaches
+    ``threshold``; None if never."""
+    hits = np.flatnonzero(np.asarray(curve)[after:] >= threshold)
+    return after + int(hits[0]) + 1 if hits.size else None
