@@ -38,7 +38,7 @@ from frl.federation.coordinator import (
     RunState,
 )
 from frl.federation.fedavg import state_nbytes  # noqa: F401  (re-exported for users)
-from frl.federation.plan import client_seeds
+from frl.federation.plan import client_seeds, initial_model_seed
 from frl.federation.pool import ProcessClientPool
 from frl.federation.tensorboard import TrainingLogger, resume_purge_step
 from frl.fileio import read_json, write_json_atomic
@@ -66,6 +66,7 @@ _VOLATILE_KEYS = ("progress", "resume", "run_dir")
 def build_client_specs(settings: TrainSettings) -> list[ClientSpec]:
     """One :class:`ClientSpec` per client of the scheme, seeded from the run seed."""
     tasks = settings.plan.client_tasks
+    init_seed = initial_model_seed(settings.seed) if settings.plan.shares_initial_model else None
     return [
         ClientSpec(
             index=index,
@@ -76,6 +77,7 @@ def build_client_specs(settings: TrainSettings) -> list[ClientSpec]:
             agent_seed=agent_seed,
             env_seed=env_seed,
             device=settings.device,
+            init_seed=init_seed,
         )
         for index, (task, (agent_seed, env_seed)) in enumerate(
             zip(tasks, client_seeds(settings.seed, len(tasks)), strict=True)
@@ -429,6 +431,7 @@ def _log_hparams(run_dir: Path, settings: TrainSettings, results: dict[str, Any]
         "seed": settings.seed,
         "targets": plan.targets,
         "weighting": plan.weighting,
+        "initial_model": "shared" if plan.shares_initial_model else "independent",
         "reward": settings.reward.name,
         "hidden_sizes": list(agent.hidden_sizes),
         "actor_lr": agent.actor_lr,

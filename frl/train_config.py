@@ -145,6 +145,9 @@ class FederationSchema:
     """average: targets averaged too; resync: onlines averaged, then copied to targets."""
     weighting: str = "equal"
     """equal: Eq. (3); steps: weighted by the clients' steps in the round."""
+    initial_model: str | None = None
+    """shared: all clients start from one initial model; independent: each its own;
+    null: shared for fedavg, independent otherwise."""
     backend: str = "processes"
     """processes: one spawned worker process per client (one SUMO each); flower: Flower."""
     flower: FlowerSchema = field(default_factory=FlowerSchema)
@@ -266,6 +269,7 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
             interval=data.get("interval", 2_000),
             targets=federation.get("targets", "average"),
             weighting=federation.get("weighting", "equal"),
+            initial_model=federation.get("initial_model"),
         )
         scenario = ScenarioConfig(**env.pop("scenario", {}))
         grid_fields = dict(env.pop("grid", {}))

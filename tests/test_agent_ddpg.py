@@ -114,6 +114,18 @@ def test_same_seed_same_parameters_different_seed_differs() -> None:
     assert not torch.equal(pa["actor.layers.0.weight"], pc["actor.layers.0.weight"])
 
 
+def test_init_seed_shares_the_networks_and_nothing_else() -> None:
+    a, b = (DDPG(GRID, ACCEL, SMALL, seed=s, init_seed=99) for s in (7, 8))
+    own = DDPG(GRID, ACCEL, SMALL, seed=7)
+    pa, pb, po = params(a), params(b), params(own)
+    assert all(torch.equal(pa[k], pb[k]) for k in pa)  # one initial model ...
+    assert not torch.equal(pa["actor.layers.0.weight"], po["actor.layers.0.weight"])
+    # ... while noise, replay sampling and warm-up actions still follow each agent's seed
+    obs = grid_obs(np.random.default_rng(0))
+    a.episode_start(), b.episode_start()
+    assert a.act(obs, explore=True) != pytest.approx(b.act(obs, explore=True))
+
+
 def test_no_global_rng_use() -> None:
     np_state, torch_state = np.random.get_state()[1].copy(), torch.get_rng_state()
     run(DDPG(GRID, ACCEL, SMALL), 30)

@@ -8,7 +8,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf.errors import ValidationError
 from train_helpers import compose_config
 
-from frl.train import train
+from frl.train import build_client_specs, train
 from frl.train_config import ConfigError, validate
 
 
@@ -26,6 +26,37 @@ def test_the_default_config_is_the_paper_setup():
 
 
 @pytest.mark.parametrize(
+    ("overrides", "shared"),
+    [
+        ([], True),  # FedAvg: the clients start from one initial global model
+        (["federation=separate"], False),
+        (["federation=central"], False),
+        (["federation.initial_model=independent"], False),  # FedAvg from apart: an ablation
+        (["federation=separate", "federation.initial_model=shared"], True),
+        (["federation.initial_model=null"], True),  # null: the scheme's default
+        (["federation=separate", "federation.initial_model=null"], False),
+    ],
+)
+def test_which_clients_share_one_initial_model(overrides, shared):
+    specs = build_client_specs(validate(compose_config(None, overrides)))
+    init_seeds = {spec.init_seed for spec in specs}
+    agent_seeds = {spec.agent_seed for spec in specs}
+    assert len(agent_seeds) == len(specs)  # every client keeps its own streams
+    if shared:
+        assert len(init_seeds) == 1 and None not in init_seeds
+    else:
+        assert init_seeds == {None}
+
+
+def test_the_shared_initial_model_depends_on_the_run_seed():
+    seeds = [
+        build_client_specs(validate(compose_config(None, [f"seed={s}"])))[0].init_seed
+        for s in (0, 0, 1)
+    ]
+    assert seeds[0] == seeds[1] != seeds[2]
+
+
+@pytest.mark.parametrize(
     ("overrides", "message"),
     [
         (["federation.scheme=fedsgd"], "unknown federation scheme 'fedsgd'"),
@@ -38,6 +69,7 @@ def test_the_default_config_is_the_paper_setup():
         (["agent.tau=2.0"], "tau must lie in"),
         (["env.max_episode_steps=0"], "max_episode_steps"),
         (["eval_episodes=-1"], "eval_episodes"),
+        (["federation.initial_model=copied"], "initial_model must be one of shared, independent"),
     ],
 )
 def test_bad_values_raise_config_error_before_any_process(overrides, message, tmp_path):

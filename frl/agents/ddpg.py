@@ -48,6 +48,9 @@ class DDPG:
         config: hyperparameters; ``None`` means the paper's Table II defaults.
         seed: seeds every random stream: network init, noise, replay sampling and warm-up
             actions each get a child of ``np.random.SeedSequence(seed)``.
+        init_seed: seeds the network initialisation alone instead, so that agents with
+            different ``seed`` start from the same networks (FedAvg's clients start from
+            one initial global model). None: the init stream of ``seed``.
         device: where networks and training batches live; nothing requires a GPU.
 
     Call :meth:`episode_start` at each reset, :meth:`act` to choose an action,
@@ -61,6 +64,7 @@ class DDPG:
         config: DDPGConfig | None = None,
         seed: int = 0,
         device: str | torch.device = "cpu",
+        init_seed: int | None = None,
     ) -> None:
         if not isinstance(observation_space, spaces.Box):
             raise TypeError(f"observation_space must be a gymnasium Box, got {observation_space}")
@@ -82,6 +86,8 @@ class DDPG:
         """Networks see :class:`SparseRows` batches (same function, fewer multiply-adds)."""
 
         init_seq, noise_seq, buffer_seq, explore_seq = np.random.SeedSequence(self.seed).spawn(4)
+        if init_seed is not None:
+            init_seq = np.random.SeedSequence(int(init_seed))
         init_gen = torch.Generator().manual_seed(int(init_seq.generate_state(1, np.uint64)[0]))
         # Built on the meta device so that nn.Linear's own init never draws from the
         # global torch RNG; then materialised and initialised from init_gen only.

@@ -58,6 +58,9 @@ class ClientSpec:
     env_seed: int
     """Base of the SUMO seeds of this vehicle's training simulations."""
     device: str = "cpu"
+    init_seed: int | None = None
+    """Seed of the network initialisation when the clients share one initial model (the
+    same for every client); None: drawn from ``agent_seed``."""
 
     @property
     def name(self) -> str:
@@ -108,6 +111,7 @@ class VehicleClient:
             self.env.action_space,
             spec.agent,
             seed=spec.agent_seed,
+            init_seed=spec.init_seed,
             device=spec.device,
         )
         self._observation: np.ndarray | None = None

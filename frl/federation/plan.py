@@ -11,6 +11,8 @@ from frl.envs import TASKS
 from frl.federation.fedavg import TARGET_MODES, WEIGHTINGS
 
 SCHEMES: tuple[str, ...] = ("central", "separate", "fedavg")
+INITIAL_MODELS: tuple[str, ...] = ("shared", "independent")
+"""How the clients' networks start: from one initial global model, or each its own."""
 """``central``: Central-DDPG, one agent, a random task per episode. ``separate``:
 Sep-DDPG, one agent per task, never averaged. ``fedavg``: FedAvg-DDPG, one agent per
 task, averaged into one global model every ``interval`` steps."""
@@ -49,6 +51,11 @@ class FederationPlan:
     online networks are uploaded and averaged; each client then copies online -> target."""
     weighting: str = "equal"
     """``equal``: Eq. (3). ``steps``: clients weighted by their steps in the round."""
+    initial_model: str | None = None
+    """``shared``: every client's networks start from one initial model drawn from the run
+    seed, as FedAvg's clients start from the server's initial global model. ``independent``:
+    each client initialises its own from its agent seed. None: ``shared`` for ``fedavg``,
+    ``independent`` for the other schemes."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "tasks", tuple(self.tasks))
@@ -81,6 +88,17 @@ class FederationPlan:
                 f"federation.weighting must be one of {', '.join(WEIGHTINGS)}, "
                 f"got {self.weighting!r}"
             )
+        if self.initial_model is not None and self.initial_model not in INITIAL_MODELS:
+            raise ValueError(
+                f"federation.initial_model must be one of {', '.join(INITIAL_MODELS)} (or null), "
+                f"got {self.initial_model!r}"
+            )
+
+    @property
+    def shares_initial_model(self) -> bool:
+        """Whether all clients start from one initial model (see ``initial_model``)."""
+        default = "shared" if self.aggregates else "independent"
+        return (self.initial_model or default) == "shared"
 
     @property
     def aggregates(self) -> bool:
@@ -128,6 +146,16 @@ def client_seeds(seed: int, num_clients: int) -> list[tuple[int, int]]:
         agent_seed, env_seed = child.generate_state(2, np.uint32)
         seeds.append((int(agent_seed), int(env_seed)))
     return seeds
+
+
+_INITIAL_MODEL_BRANCH = 0x1A17
+"""Spawn-key root of the shared initial model's seed, apart from every other stream."""
+
+
+def initial_model_seed(seed: int) -> int:
+    """Network-initialisation seed of the shared initial global model of run ``seed``."""
+    branch = np.random.SeedSequence(int(seed), spawn_key=(_INITIAL_MODEL_BRANCH,))
+    return int(branch.generate_state(1, np.uint32)[0])
 
 
 _EVALUATION_BRANCH = 0xE7A1
