@@ -30,17 +30,10 @@ from typing import Any
 
 import numpy as np
 
+from frl.episodes import METRIC_NAMES
 from frl.federation.client import LOSS_NAMES, LocalUpdate
 
 LOSS_WINDOW_STEPS = 100
-EVAL_METRICS: tuple[str, ...] = (
-    "average_reward",
-    "collision_rate",
-    "arrival_rate",
-    "timeout_rate",
-    "average_travel_time",
-    "average_episode_steps",
-)
 
 
 def step_reward_tag() -> str:
@@ -107,7 +100,7 @@ class TrainingLogger:
         self, per_task: Mapping[str, Mapping[str, Any]], average: Mapping[str, Any], step: int
     ) -> None:
         for group, metrics in [*per_task.items(), ("average", average)]:
-            for name in EVAL_METRICS:
+            for name in METRIC_NAMES:
                 value = metrics.get(name)
                 if value is not None and math.isfinite(value):
                     self.writer.add_scalar(f"eval/{group}/{name}", value, step)
