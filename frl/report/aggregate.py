@@ -140,7 +140,8 @@ def fig4(collection: Collection, settings: CurveSettings) -> dict[str, SchemeCur
 
 
 # ---------------------------------------------------------------- test tables
-EVAL_METRICS: tuple[str, ...] = (
+# The Fig. 5 subset of frl.episodes.METRIC_NAMES: the report tabulates these per task.
+SUMMARISED_TEST_METRICS: tuple[str, ...] = (
     "average_reward",
     "collision_rate",
     "average_episode_steps",
@@ -167,7 +168,8 @@ def eval_summary(runs: list[RunRecord]) -> EvalSummary | None:
         if all(row is None for row in rows):
             continue
         summary.metrics[task] = {
-            metric: _estimate([row.get(metric) for row in rows if row]) for metric in EVAL_METRICS
+            metric: _estimate([row.get(metric) for row in rows if row])
+            for metric in SUMMARISED_TEST_METRICS
         }
     return summary
 
