@@ -2,11 +2,12 @@
 
 import multiprocessing
 import re
+from pathlib import Path
 
 import pytest
 from hydra.errors import ConfigCompositionException
 from omegaconf.errors import ValidationError
-from train_helpers import compose_config
+from train_helpers import CONF_DIR, compose_config
 
 from frl.train import build_client_specs, train
 from frl.train_config import ConfigError, validate
@@ -23,6 +24,21 @@ def test_the_default_config_is_the_paper_setup():
         5,
         ("left", "straight", "right"),
     )
+
+
+@pytest.mark.parametrize(
+    "preset", sorted(path.stem for path in (Path(CONF_DIR) / "experiment").glob("*.yaml"))
+)
+def test_every_experiment_preset_composes_and_validates(preset):
+    validate(compose_config(None, [f"+experiment={preset}"]))
+
+
+def test_the_learning_study_is_fig4s_central_ddpg_but_for_its_overrides():
+    variant = ["agent.actor_lr=0.001", "agent.critic_lr=0.001", "agent.tau=0.005"]
+    study = validate(compose_config(None, ["+experiment=study-learning", *variant]))
+    assert study == validate(compose_config(None, ["federation=central", *variant]))
+    assert study != validate(compose_config(None, ["federation=central"]))
+    assert study.plan.scheme == "central" and study.agent.actor_lr == 0.001
 
 
 @pytest.mark.parametrize(
