@@ -141,7 +141,9 @@ def plot_fig6(points: list[IntervalPoint], settings: CurveSettings, path: Path) 
             label="test reward",
         )
     axis.set(xscale="log", xlabel="aggregation interval (steps)", ylabel="average reward")
-    axis.set_xticks(intervals, [f"{int(i)}" for i in intervals])
+    # Slanted: on a log axis 2,000 and 2,500 sit too close for upright labels.
+    axis.set_xticks(intervals, [f"{int(i):,}" for i in intervals], rotation=45, ha="right")
+    axis.minorticks_off()
     axis.minorticks_off()
     axis.grid(alpha=0.3)
     second = axis.twinx()
