@@ -11,11 +11,11 @@ from frl.envs import TASKS
 from frl.federation.fedavg import TARGET_MODES, WEIGHTINGS
 
 SCHEMES: tuple[str, ...] = ("central", "separate", "fedavg")
-INITIAL_MODELS: tuple[str, ...] = ("shared", "independent")
-"""How the clients' networks start: from one initial global model, or each its own."""
 """``central``: Central-DDPG, one agent, a random task per episode. ``separate``:
 Sep-DDPG, one agent per task, never averaged. ``fedavg``: FedAvg-DDPG, one agent per
 task, averaged into one global model every ``interval`` steps."""
+INITIAL_MODELS: tuple[str, ...] = ("shared", "independent")
+"""How the clients' networks start: from one initial global model, or each its own."""
 
 BACKENDS: tuple[str, ...] = ("processes", "flower")
 """How clients run: ``processes`` = one spawned worker process per client (libsumo

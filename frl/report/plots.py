@@ -144,7 +144,6 @@ def plot_fig6(points: list[IntervalPoint], settings: CurveSettings, path: Path) 
     # Slanted: on a log axis 2,000 and 2,500 sit too close for upright labels.
     axis.set_xticks(intervals, [f"{int(i):,}" for i in intervals], rotation=45, ha="right")
     axis.minorticks_off()
-    axis.minorticks_off()
     axis.grid(alpha=0.3)
     second = axis.twinx()
     cost = np.array([_val(p.total_bytes) for p in points])
