@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from frl.report.aggregate import CurveSettings, reward_curve
+from frl.report.markdown import table
 from frl.report.runs import RunDataError, RunRecord, load_run
 
 IGNORED_SETTINGS = frozenset({"seed", "run_dir", "resume", "progress", "device"})
@@ -68,24 +69,25 @@ def compare_table(runs: Sequence[RunRecord], episode_window: int = 100) -> str:
         "arrivals",
         "travel time",
     ]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    rows = []
     for run in runs:
         settings = dict(flat_settings(run.config))
         final, best = training_rewards(run, episode_window)
         test = (run.evaluation or {}).get("average") or {}
-        cells = [
-            run.name,
-            str(run.seed),
-            *(str(settings.get(key, "–")) for key in varied),
-            _number(final),
-            _number(best),
-            _number(test.get("average_reward")),
-            _percent(test.get("collision_rate")),
-            _percent(test.get("arrival_rate")),
-            _number(test.get("average_travel_time"), digits=1),
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        rows.append(
+            [
+                run.name,
+                run.seed,
+                *(settings.get(key, "–") for key in varied),
+                _number(final),
+                _number(best),
+                _number(test.get("average_reward")),
+                _percent(test.get("collision_rate")),
+                _percent(test.get("arrival_rate")),
+                _number(test.get("average_travel_time"), digits=1),
+            ]
+        )
+    return table(header, rows)
 
 
 def _number(value: float | None, digits: int = 2) -> str:
