@@ -41,6 +41,16 @@ def test_the_learning_study_is_fig4s_central_ddpg_but_for_its_overrides():
     assert study.plan.scheme == "central" and study.agent.actor_lr == 0.001
 
 
+def test_the_waiting_study_is_the_learning_study_without_the_undisturbed_bonus():
+    variant = ["agent.actor_lr=0.001", "agent.critic_lr=0.001", "agent.tau=0.005"]
+    study = validate(compose_config(None, ["+experiment=study-waiting", *variant]))
+    learning = validate(compose_config(None, ["+experiment=study-learning", *variant]))
+    assert learning.reward.undisturbed_bonus > 0
+    assert study == validate(
+        compose_config(None, ["+experiment=study-learning", "reward.undisturbed_bonus=0", *variant])
+    )
+
+
 @pytest.mark.parametrize(
     ("overrides", "shared"),
     [
