@@ -33,22 +33,23 @@ def test_every_experiment_preset_composes_and_validates(preset):
     validate(compose_config(None, [f"+experiment={preset}"]))
 
 
+FASTER_LEARNING = ["agent.actor_lr=0.001", "agent.critic_lr=0.001", "agent.tau=0.005"]
+"""The studies' learning variant: the quick preset's rates on Table II's networks."""
+
+
 def test_the_learning_study_is_fig4s_central_ddpg_but_for_its_overrides():
-    variant = ["agent.actor_lr=0.001", "agent.critic_lr=0.001", "agent.tau=0.005"]
-    study = validate(compose_config(None, ["+experiment=study-learning", *variant]))
-    assert study == validate(compose_config(None, ["federation=central", *variant]))
+    study = validate(compose_config(None, ["+experiment=study-learning", *FASTER_LEARNING]))
+    assert study == validate(compose_config(None, ["federation=central", *FASTER_LEARNING]))
     assert study != validate(compose_config(None, ["federation=central"]))
     assert study.plan.scheme == "central" and study.agent.actor_lr == 0.001
 
 
 def test_the_waiting_study_is_the_learning_study_without_the_undisturbed_bonus():
-    variant = ["agent.actor_lr=0.001", "agent.critic_lr=0.001", "agent.tau=0.005"]
-    study = validate(compose_config(None, ["+experiment=study-waiting", *variant]))
-    learning = validate(compose_config(None, ["+experiment=study-learning", *variant]))
+    study = validate(compose_config(None, ["+experiment=study-waiting", *FASTER_LEARNING]))
+    learning = validate(compose_config(None, ["+experiment=study-learning", *FASTER_LEARNING]))
     assert learning.reward.undisturbed_bonus > 0
-    assert study == validate(
-        compose_config(None, ["+experiment=study-learning", "reward.undisturbed_bonus=0", *variant])
-    )
+    without_bonus = ["+experiment=study-learning", "reward.undisturbed_bonus=0", *FASTER_LEARNING]
+    assert study == validate(compose_config(None, without_bonus))
 
 
 @pytest.mark.parametrize(
