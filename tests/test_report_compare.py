@@ -3,7 +3,13 @@
 import yaml
 from report_helpers import evaluation, make_run
 
-from frl.report.compare import compare_table, differing_settings, main, training_rewards
+from frl.report.compare import (
+    compare_table,
+    differing_settings,
+    flat_settings,
+    main,
+    training_rewards,
+)
 from frl.report.runs import load_run
 
 EPISODES = {"client0_random": [(5, 2.0), (10, 8.0), (15, 4.0), (20, 4.0)]}
@@ -34,7 +40,8 @@ def test_only_the_settings_the_runs_differ_in_become_columns(tmp_path):
     _set_config(fast, "federation.initial_model", "independent")
     runs = [load_run(path) for path in (base, fast, older)]
     # Not the seed, not the key the older run lacks; eval_episodes: only base was tested.
-    assert differing_settings(runs) == ["agent.actor_lr", "eval_episodes"]
+    per_run = [dict(flat_settings(run.config)) for run in runs]
+    assert differing_settings(per_run) == ["agent.actor_lr", "eval_episodes"]
     table = compare_table(runs, episode_window=2).splitlines()
     assert table[0].startswith("| run | seed | agent.actor_lr | eval_episodes | final")
     assert table[2].split(" | ")[:4] == ["| base", "0", "0.0001", "100"]

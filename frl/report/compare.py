@@ -33,10 +33,10 @@ def flat_settings(config: dict[str, Any], prefix: str = "") -> Iterator[tuple[st
             yield name, value
 
 
-def differing_settings(runs: Sequence[RunRecord]) -> list[str]:
-    """The config keys with different values in the runs that have them, in config order.
-    A key an older run's config lacks is not a difference: that run predates the option."""
-    per_run = [dict(flat_settings(run.config)) for run in runs]
+def differing_settings(per_run: Sequence[dict[str, Any]]) -> list[str]:
+    """The keys of the runs' flattened configs (see ``flat_settings``) with different values
+    in the runs that have them, in config order. A key an older run's config lacks is not a
+    difference: that run predates the option."""
     keys = dict.fromkeys(key for settings in per_run for key in settings)
     return [
         key
@@ -57,7 +57,8 @@ def training_rewards(run: RunRecord, episode_window: int) -> tuple[float, float]
 
 def compare_table(runs: Sequence[RunRecord], episode_window: int = 100) -> str:
     """A markdown table with one row per run."""
-    varied = differing_settings(runs)
+    per_run = [dict(flat_settings(run.config)) for run in runs]
+    varied = differing_settings(per_run)
     header = [
         "run",
         "seed",
@@ -70,8 +71,7 @@ def compare_table(runs: Sequence[RunRecord], episode_window: int = 100) -> str:
         "travel time",
     ]
     rows = []
-    for run in runs:
-        settings = dict(flat_settings(run.config))
+    for run, settings in zip(runs, per_run, strict=True):
         final, best = training_rewards(run, episode_window)
         test = (run.evaluation or {}).get("average") or {}
         rows.append(
