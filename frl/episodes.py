@@ -83,13 +83,19 @@ def run_episodes(
 
 
 def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:
-    """The Section IV.B metrics of some episodes; see :data:`TRAVEL_TIME_DEFINITION`."""
+    """The Section IV.B metrics of some episodes; see :data:`TRAVEL_TIME_DEFINITION`.
+
+    ``return_std`` (sample standard deviation of the returns, for intervals) is per task
+    only: :func:`average_over_tasks` leaves it out.
+    """
     count = len(records)
     if count == 0:
-        return {name: None for name in METRIC_NAMES} | {"episodes": 0}
+        return {name: None for name in METRIC_NAMES} | {"return_std": None, "episodes": 0}
     arrived_steps = [r.steps for r in records if r.arrived]
+    returns = [r.episode_return for r in records]
     return {
-        "average_reward": float(np.mean([r.episode_return for r in records])),
+        "average_reward": float(np.mean(returns)),
+        "return_std": float(np.std(returns, ddof=1)) if count > 1 else None,
         "collision_rate": sum(r.collision for r in records) / count,
         "arrival_rate": len(arrived_steps) / count,
         "timeout_rate": sum(r.timeout for r in records) / count,

@@ -1,14 +1,19 @@
-"""Test a trained run: 100 episodes per task, exploration off (Section IV.B).
+"""Test a trained run, or a yardstick policy, on 100 seeded episodes per task (Section IV.B).
 
-    python -m frl.evaluate RUN_DIR [--episodes N] [--no-progress] [--no-tensorboard]
+    python -m frl.evaluate RUN_DIR [--episodes N]            # the run's model(s) + yardsticks
+    python -m frl.evaluate --policy oracle --task all         # a yardstick on the default traffic
+    python -m frl.evaluate --policy all --traffic dense --seed 1
+    python -m frl.evaluate RUN_DIR --policy gap_acceptance    # a yardstick on a run's seeds
 
 Runs automatically at the end of ``python -m frl.train``. Each task is tested with the
 model the scheme deploys for it (``models/index.json``): FedAvg-DDPG's one global model,
 Sep-DDPG's task model, Central-DDPG's one model. Episodes run on SUMO seeds from a
-branch disjoint from training (odd seeds; training uses even ones) with test traffic of
-one human arrival per ``eval_arrival_period_steps`` (10) steps; every scheme trained with
-the same ``seed`` meets the same test traffic. Each task runs in its own worker process
-(one SUMO each). Results are merged into ``RUN_DIR/results.json`` atomically and printed.
+branch disjoint from training (odd seeds; training uses even ones) on the training
+traffic; every scheme and every yardstick tested with the same ``seed`` meets the same
+traffic. Each task runs in its own worker process (one SUMO each). The run's
+``yardsticks`` (full throttle and the oracle by default) are tested on the same seeds,
+cached per traffic and seeds (frl.yardsticks). Results are merged into
+``RUN_DIR/results.json`` atomically and printed.
 """
 
 from __future__ import annotations
@@ -17,12 +22,13 @@ import argparse
 import functools
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from frl.agents import DDPG
-from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
+from frl import yardsticks as yardstick_cache
+from frl.envs import TASKS, TRAFFIC_PRESETS, EnvConfig, IntersectionEnv, RewardConfig
+from frl.envs.config import traffic_name
 from frl.episodes import (
     TRAVEL_TIME_DEFINITION,
     EpisodeRecord,
@@ -33,35 +39,137 @@ from frl.episodes import (
 from frl.federation.plan import evaluation_seeds
 from frl.federation.workers import WorkerPool, threads_per_worker
 from frl.fileio import read_json, write_json_atomic
+from frl.policies import YARDSTICK_LABELS, YARDSTICKS, make_yardstick
 
 RESULTS_FILE = "results.json"
+MODEL = "model"
+"""The policy name of a run's trained model(s) in :func:`evaluate_policies`."""
+SEEDS_DEFINITION = (
+    "odd SUMO seeds from SeedSequence(seed, spawn_key=(0xE7A1, task)); training uses even seeds"
+)
 
 
 class PolicyEvaluator:
-    """Hosts one test environment and one saved model (one per worker process)."""
+    """Hosts one test environment, and optionally one saved model (one per worker process)."""
 
     def __init__(
-        self, env: EnvConfig, reward: RewardConfig, model_path: str, device: str = "cpu"
+        self,
+        env: EnvConfig,
+        reward: RewardConfig,
+        model_path: str | None = None,
+        device: str = "cpu",
     ) -> None:
         self.env = IntersectionEnv(env, reward)
-        self.agent = DDPG.from_checkpoint(
-            model_path, self.env.observation_space, self.env.action_space, device=device
-        )
+        self.agent = None
+        if model_path is not None:
+            from frl.agents import DDPG
+
+            self.agent = DDPG.from_checkpoint(
+                model_path, self.env.observation_space, self.env.action_space, device=device
+            )
 
     def run(
-        self, task: str, seeds: list[int], progress: Callable[..., None] | None = None
+        self,
+        task: str,
+        seeds: list[int],
+        policy: str = MODEL,
+        progress: Callable[..., None] | None = None,
     ) -> list[EpisodeRecord]:
-        """One deterministic-policy episode per seed."""
+        """One episode per seed with ``policy``: the model (exploration off) or a yardstick."""
+        if policy == MODEL:
+            if self.agent is None:
+                raise ValueError("this evaluator holds no model")
+            act = functools.partial(self.agent.act, explore=False)
+        else:
+            act = make_yardstick(policy, self.env)
         records = []
-        policy = functools.partial(self.agent.act, explore=False)
         for number, seed in enumerate(seeds, start=1):
-            records.append(run_episode(self.env, policy, task, seed))
+            records.append(run_episode(self.env, act, task, seed))
             if progress is not None:
                 progress(episodes=number)
         return records
 
     def close(self) -> None:
         self.env.close()
+
+
+def evaluate_policies(
+    settings: Any,
+    tasks: Sequence[str],
+    episodes: int,
+    policies: Sequence[str],
+    model_files: dict[str, str] | None = None,
+    progress: bool = False,
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """Test each policy on each task's test seeds; ``{policy: {task: summary}}``.
+
+    ``settings`` is a :class:`frl.train_config.TrainSettings`. ``model_files`` maps each
+    task to its saved model (needed when ``policies`` holds :data:`MODEL`). Yardsticks
+    come from the cache when they ran on the same environment, reward and seeds before.
+    """
+    seeds = {task: evaluation_seeds(settings.seed, task, episodes) for task in tasks}
+    results: dict[str, dict[str, dict[str, Any]]] = {name: {} for name in policies}
+    keys: dict[tuple[str, str], str] = {}
+    for name in policies:
+        if name == MODEL:
+            continue
+        for task in tasks:
+            key = yardstick_cache.cache_key(
+                name, settings.eval_env(task), settings.reward, seeds[task]
+            )
+            cached = yardstick_cache.load(key)
+            if cached is not None:
+                results[name][task] = cached
+            else:
+                keys[name, task] = key
+    to_run = [name for name in policies if name == MODEL or any((name, t) in keys for t in tasks)]
+    if not to_run:
+        return results
+    clients = [
+        (
+            f"eval_{task}",
+            functools.partial(
+                PolicyEvaluator,
+                settings.eval_env(task),
+                settings.reward,
+                os.fspath(model_files[task]) if model_files and MODEL in to_run else None,
+                settings.device,
+            ),
+        )
+        for task in tasks
+    ]
+    with WorkerPool(
+        clients,
+        num_threads=threads_per_worker(len(clients)),
+        timeout_s=settings.worker_timeout_s,
+    ) as pool:
+        for name in to_run:
+            todo = [t for t in tasks if name == MODEL or (name, t) in keys]
+            bar = _progress_bar(progress, episodes * len(todo), _label(name))
+            done = [0] * len(tasks)
+
+            def on_progress(
+                index: int, info: dict[str, Any], bar: Any = bar, done: list[int] = done
+            ) -> None:
+                done[index] = int(info["episodes"])
+                bar.update(sum(done) - bar.n)
+
+            try:
+                records = pool.call(
+                    "run",
+                    args=[(t, seeds[t] if t in todo else [], name) for t in tasks],
+                    on_progress=on_progress,
+                )
+            finally:
+                bar.close()
+            for task, task_records in zip(tasks, records, strict=True):
+                if task not in todo:
+                    continue
+                summary = summarize(task_records)
+                results[name][task] = summary
+                if name != MODEL:
+                    yardstick_cache.store(keys[name, task], summary)
+    return results
 
 
 def evaluate_run(
@@ -71,14 +179,10 @@ def evaluate_run(
     log_tensorboard: bool = True,
     verbose: bool = True,
 ) -> dict[str, Any]:
-    """Test the run's final model(s); merge ``evaluation`` into results.json; return it.
-
-    ``episodes`` overrides the run's ``eval_episodes``.
-    """
-    from frl.train_config import load_run_config, validate
-
+    """Test the run's final model(s) and its yardsticks; merge ``evaluation`` into
+    results.json; return it. ``episodes`` overrides the run's ``eval_episodes``."""
     run_dir = Path(run_dir)
-    settings = validate(load_run_config(run_dir))
+    settings = _run_settings(run_dir)
     episodes = settings.eval_episodes if episodes is None else int(episodes)
     if episodes <= 0:
         raise ValueError(f"episodes must be positive, got {episodes}")
@@ -90,99 +194,182 @@ def evaluate_run(
         )
     model_files: dict[str, str] = read_json(index_path)
     tasks = list(model_files)
-    clients = [
-        (
-            f"eval_{task}",
-            functools.partial(
-                PolicyEvaluator,
-                settings.eval_env(task),
-                settings.reward,
-                os.fspath(run_dir / "models" / model_files[task]),
-                settings.device,
-            ),
-        )
-        for task in tasks
-    ]
-    seeds = {task: evaluation_seeds(settings.seed, task, episodes) for task in tasks}
-    bar = _progress_bar(progress, episodes * len(tasks))
-    done = [0] * len(tasks)
-
-    def on_progress(index: int, info: dict[str, Any]) -> None:
-        done[index] = int(info["episodes"])
-        bar.update(sum(done) - bar.n)
-
-    try:
-        with WorkerPool(
-            clients,
-            num_threads=threads_per_worker(len(clients)),
-            timeout_s=settings.worker_timeout_s,
-        ) as pool:
-            records = pool.call(
-                "run", args=[(task, seeds[task]) for task in tasks], on_progress=on_progress
-            )
-    finally:
-        bar.close()
-    per_task = {task: summarize(r) for task, r in zip(tasks, records, strict=True)}
-    average = average_over_tasks(per_task)
+    paths = {task: os.fspath(run_dir / "models" / name) for task, name in model_files.items()}
+    tested = evaluate_policies(
+        settings, tasks, episodes, [MODEL, *settings.yardsticks], paths, progress
+    )
     evaluation = {
         "episodes_per_task": episodes,
         "exploration": False,
-        "arrival_period_steps": settings.eval_arrival_period_steps,
-        "seeds": "odd SUMO seeds from SeedSequence(seed, spawn_key=(0xE7A1, task)); "
-        "training uses even seeds",
+        "traffic": traffic_name(settings.env.scenario),
+        "human_arrival_period_steps": settings.env.scenario.human_arrival_period_steps,
+        "seeds": SEEDS_DEFINITION,
         "models": model_files,
         "travel_time_definition": TRAVEL_TIME_DEFINITION,
-        "per_task": per_task,
-        "average": average,
+        **_table(tested.pop(MODEL)),
+        "yardsticks": {name: _table(per_task) for name, per_task in tested.items()},
     }
-    results_path = run_dir / RESULTS_FILE
-    results = read_json(results_path) if results_path.exists() else {}
-    results["evaluation"] = evaluation
-    write_json_atomic(results_path, results)
+    _merge_into_results(run_dir, evaluation)
     if log_tensorboard:
         from frl.federation.tensorboard import TrainingLogger
 
         with TrainingLogger(run_dir / "tb") as logger:
-            logger.log_evaluation(per_task, average, settings.plan.total_steps)
+            step = settings.plan.total_steps
+            logger.log_evaluation(evaluation["per_task"], evaluation["average"], step)
+            for name, table in evaluation["yardsticks"].items():
+                # Same seeds as eval/*: the model's line sits between these in TensorBoard.
+                logger.log_evaluation(
+                    table["per_task"], table["average"], step, prefix=f"eval_yardstick/{name}"
+                )
     if verbose:
-        print(format_table(results))
+        print(format_table(read_json(run_dir / RESULTS_FILE)))
     return evaluation
 
 
-def format_table(results: dict[str, Any]) -> str:
-    """The test table of a results.json (per task and averaged)."""
-    evaluation = results["evaluation"]
-    scheme = results.get("scheme", "?")
+def evaluate_yardsticks(
+    names: Sequence[str],
+    tasks: Sequence[str],
+    run_dir: str | os.PathLike[str] | None = None,
+    traffic: str | None = None,
+    seed: int | None = None,
+    episodes: int | None = None,
+    progress: bool = False,
+) -> dict[str, dict[str, Any]]:
+    """Test yardsticks on a run's test seeds, or on the default config's; ``{name: table}``.
+
+    With ``run_dir`` the run's config decides the traffic, reward and seeds, and the
+    tables join the run's ``results.json`` when they match its evaluation's episodes.
+    Without, the default config with the ``traffic`` preset and ``seed`` decides.
+    """
+    unknown = [name for name in names if name not in YARDSTICKS]
+    if unknown:
+        raise ValueError(f"unknown policy {unknown[0]!r}; choose one of {', '.join(YARDSTICKS)}")
+    if run_dir is not None:
+        if traffic is not None or seed is not None:
+            raise ValueError(
+                "--traffic and --seed come from the run's config when RUN_DIR is given"
+            )
+        settings = _run_settings(Path(run_dir))
+    else:
+        settings = default_settings(traffic or "paper", 0 if seed is None else seed)
+    episodes = (settings.eval_episodes or 100) if episodes is None else int(episodes)
+    if episodes <= 0:
+        raise ValueError(f"episodes must be positive, got {episodes}")
+    tested = evaluate_policies(settings, tasks, episodes, names, progress=progress)
+    tables = {name: _table(per_task) for name, per_task in tested.items()}
+    if run_dir is not None:
+        results_path = Path(run_dir) / RESULTS_FILE
+        results = read_json(results_path) if results_path.exists() else {}
+        evaluation = results.get("evaluation")
+        if (
+            evaluation
+            and evaluation.get("episodes_per_task") == episodes
+            and set(evaluation.get("per_task", {})) == set(tasks)
+        ):
+            evaluation.setdefault("yardsticks", {}).update(tables)
+            write_json_atomic(results_path, results)
     header = (
-        f"{scheme}, seed {results.get('seed', '?')}: {evaluation['episodes_per_task']} test "
-        f"episodes per task, exploration off"
+        f"traffic {traffic_name(settings.env.scenario)}, seed {settings.seed}: "
+        f"{episodes} test episodes per task"
     )
-    columns = f"{'task':<9} {'avg reward':>10} {'collision':>9} {'arrived':>8} {'timeout':>8} "
-    columns += f"{'travel time':>11} {'ep. steps':>9}"
-    lines = [header, columns, "-" * len(columns)]
-    rows = [*evaluation["per_task"].items(), ("average", evaluation["average"])]
-    for name, m in rows:
-        travel = "-" if m["average_travel_time"] is None else f"{m['average_travel_time']:.1f}"
-        lines.append(
-            f"{name:<9} {m['average_reward']:>10.2f} {m['collision_rate']:>9.1%} "
-            f"{m['arrival_rate']:>8.1%} {m['timeout_rate']:>8.1%} {travel:>11} "
-            f"{m['average_episode_steps']:>9.1f}"
+    print(header)
+    for name, table in tables.items():
+        print(_format_rows(_label(name), table))
+    return tables
+
+
+def default_settings(traffic: str, seed: int) -> Any:
+    """The default training config on the ``traffic`` preset and ``seed``, validated."""
+    from frl.train_config import validate
+
+    if traffic not in TRAFFIC_PRESETS:
+        raise ValueError(
+            f"unknown traffic preset {traffic!r}; choose one of {', '.join(TRAFFIC_PRESETS)}"
         )
+    return validate({"seed": seed, "env": {"scenario": dict(TRAFFIC_PRESETS[traffic])}})
+
+
+def format_table(results: dict[str, Any]) -> str:
+    """The test table of a results.json: the model per task, then its yardsticks."""
+    evaluation = results["evaluation"]
+    traffic = evaluation.get("traffic")
+    header = (
+        f"{results.get('scheme', '?')}, seed {results.get('seed', '?')}: "
+        f"{evaluation['episodes_per_task']} test episodes per task, exploration off"
+        + (f", traffic {traffic}" if traffic else "")
+    )
+    lines = [header, _format_rows("model", evaluation)]
+    for name, table in evaluation.get("yardsticks", {}).items():
+        lines.append(_format_rows(f"{_label(name)} (same seeds)", table, per_task=False))
     lines.append("travel time: steps to arrival, over arrived episodes only; ep. steps: all")
     return "\n".join(lines)
 
 
-def _progress_bar(enabled: bool, total: int) -> Any:
+def _format_rows(title: str, table: dict[str, Any], per_task: bool = True) -> str:
+    columns = f"{title:<28} {'avg reward':>10} {'collision':>9} {'arrived':>8} {'timeout':>8} "
+    columns += f"{'travel time':>11} {'ep. steps':>9}"
+    lines = [columns] if per_task else []
+    rows = [*table["per_task"].items()] if per_task else []
+    rows.append(("average" if per_task else title, table["average"]))
+    for name, m in rows:
+        travel = "-" if m["average_travel_time"] is None else f"{m['average_travel_time']:.1f}"
+        lines.append(
+            f"{name:<28} {m['average_reward']:>10.2f} {m['collision_rate']:>9.1%} "
+            f"{m['arrival_rate']:>8.1%} {m['timeout_rate']:>8.1%} {travel:>11} "
+            f"{m['average_episode_steps']:>9.1f}"
+        )
+    return "\n".join(lines)
+
+
+def _table(per_task: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    return {"per_task": per_task, "average": average_over_tasks(per_task)}
+
+
+def _label(name: str) -> str:
+    return YARDSTICK_LABELS.get(name, name)
+
+
+def _run_settings(run_dir: Path) -> Any:
+    from frl.train_config import load_run_config, validate
+
+    return validate(load_run_config(run_dir))
+
+
+def _merge_into_results(run_dir: Path, evaluation: dict[str, Any]) -> None:
+    results_path = run_dir / RESULTS_FILE
+    results = read_json(results_path) if results_path.exists() else {}
+    results["evaluation"] = evaluation
+    write_json_atomic(results_path, results)
+
+
+def _progress_bar(enabled: bool, total: int, description: str) -> Any:
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, unit="episode", desc="evaluation", disable=not enabled)
+    return tqdm(total=total, unit="episode", desc=description, disable=not enabled)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m frl.evaluate", description=__doc__.splitlines()[0]
     )
-    parser.add_argument("run_dir", type=Path, help="a run directory written by frl.train")
+    parser.add_argument(
+        "run_dir", type=Path, nargs="?", help="a run directory written by frl.train"
+    )
+    parser.add_argument(
+        "--policy",
+        help=f"test a yardstick instead of the run's model: {', '.join(YARDSTICKS)}, or all",
+    )
+    parser.add_argument(
+        "--task", default="all", help=f"with --policy: {', '.join(TASKS)} or all (default)"
+    )
+    parser.add_argument(
+        "--traffic", help=f"with --policy and no RUN_DIR: {', '.join(TRAFFIC_PRESETS)} (paper)"
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        help="with --policy and no RUN_DIR: the run seed whose test seeds to use (0)",
+    )
     parser.add_argument("--episodes", type=int, default=None, help="test episodes per task")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument(
@@ -191,13 +378,41 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes is not None and args.episodes <= 0:
         parser.error("--episodes must be positive")
+    if args.policy is None:
+        if args.run_dir is None:
+            parser.error("give a RUN_DIR to test its model, or --policy NAME")
+        if args.traffic is not None or args.seed is not None or args.task != "all":
+            parser.error("--traffic, --seed and --task go with --policy")
+    else:
+        names = list(YARDSTICKS) if args.policy == "all" else [args.policy]
+        if any(name not in YARDSTICKS for name in names):
+            parser.error(
+                f"unknown policy {args.policy!r}; choose one of {', '.join(YARDSTICKS)}, or all"
+            )
+        if args.task != "all" and args.task not in TASKS:
+            parser.error(f"unknown task {args.task!r}; choose one of {', '.join(TASKS)}, or all")
+        if args.traffic is not None and args.traffic not in TRAFFIC_PRESETS:
+            parser.error(
+                f"unknown traffic {args.traffic!r}; choose one of {', '.join(TRAFFIC_PRESETS)}"
+            )
     try:
-        evaluate_run(
-            args.run_dir,
-            episodes=args.episodes,
-            progress=not args.no_progress,
-            log_tensorboard=not args.no_tensorboard,
-        )
+        if args.policy is None:
+            evaluate_run(
+                args.run_dir,
+                episodes=args.episodes,
+                progress=not args.no_progress,
+                log_tensorboard=not args.no_tensorboard,
+            )
+        else:
+            evaluate_yardsticks(
+                names,
+                list(TASKS) if args.task == "all" else [args.task],
+                run_dir=args.run_dir,
+                traffic=args.traffic,
+                seed=args.seed,
+                episodes=args.episodes,
+                progress=not args.no_progress,
+            )
     except (FileNotFoundError, ValueError) as error:
         print(f"frl.evaluate: error: {error}", file=sys.stderr)
         return 2

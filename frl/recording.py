@@ -7,18 +7,26 @@ from pathlib import Path
 
 import numpy as np
 
-from frl.envs import IntersectionEnv
+from frl.envs import EnvConfig, IntersectionEnv
 from frl.fileio import atomic_write
 
 Policy = Callable[[np.ndarray], np.ndarray]
 
 
-def record_episode(path: Path | str, task: str, seed: int, policy: Policy) -> Path:
-    """Run one episode with ``policy`` and write its frames to ``path`` (GIF, atomically)."""
+def record_episode(
+    path: Path | str, task: str, seed: int, policy: Policy, config: EnvConfig | None = None
+) -> Path:
+    """Run one episode with ``policy`` and write its frames to ``path`` (GIF, atomically).
+
+    ``config`` is the env's (its ``task`` is replaced by ``task``); default: ``EnvConfig()``.
+    """
+    from dataclasses import replace
+
     from PIL import Image
 
     path = Path(path)
-    env = IntersectionEnv(task=task, render_mode="rgb_array")
+    config = replace(config or EnvConfig(), task=task)
+    env = IntersectionEnv(config, render_mode="rgb_array")
     try:
         observation, _ = env.reset(seed=seed)
         frames = [env.render()]

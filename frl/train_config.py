@@ -21,8 +21,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from frl.agents import DDPGConfig
 from frl.envs import TASKS, EnvConfig, GridConfig, RewardConfig, ScenarioConfig
-from frl.envs.config import REWARD_NAMES
+from frl.envs.config import REWARD_NAMES, TRAFFIC_PRESETS
 from frl.federation.plan import BACKENDS, FLOWER_RUNTIMES, FederationPlan
+from frl.policies import YARDSTICKS
 
 _ENV = EnvConfig()
 _SCENARIO = ScenarioConfig()
@@ -46,6 +47,7 @@ class ScenarioSchema:
     step_length: float = _SCENARIO.step_length
     human_arrival_period_steps: float = _SCENARIO.human_arrival_period_steps
     human_arrival_process: str = _SCENARIO.human_arrival_process
+    human_speed_dev: float = _SCENARIO.human_speed_dev
     ego_start_distance: float = _SCENARIO.ego_start_distance
     ego_destination_distance: float = _SCENARIO.ego_destination_distance
     vehicle_length: float = _SCENARIO.vehicle_length
@@ -167,9 +169,10 @@ class TrainSchema:
     interval: int = 2_000
     """Environment steps per client between aggregations (FedAvg) or checkpoints (all)."""
     eval_episodes: int = 100
-    """Test episodes per task after training (Section IV.B); 0 skips evaluation."""
-    eval_arrival_period_steps: float = 10.0
-    """Test traffic: one human arrival per this many steps (Section IV.B: 10)."""
+    """Test episodes per task after training (Section IV.B); 0 skips evaluation. Tests
+    run on the training traffic (``env.scenario``, set by the ``traffic`` group)."""
+    yardsticks: list[str] = field(default_factory=lambda: ["full_throttle", "oracle"])
+    """Yardstick policies tested on the same seeds beside the model (frl.policies)."""
     progress: bool = True
     """Progress bar; always off in multirun."""
     resume: Any = False
@@ -185,10 +188,17 @@ class TrainSchema:
 
 
 def register_configs() -> None:
-    """Put the schema into Hydra's ConfigStore (idempotent)."""
+    """Put the schema and the traffic presets into Hydra's ConfigStore (idempotent).
+
+    The ``traffic`` group's options are :data:`frl.envs.TRAFFIC_PRESETS`, written into
+    ``env.scenario``: the library holds each preset once, Hydra only names it.
+    """
     from hydra.core.config_store import ConfigStore
 
-    ConfigStore.instance().store(name="train_schema", node=TrainSchema)
+    store = ConfigStore.instance()
+    store.store(name="train_schema", node=TrainSchema)
+    for name, values in TRAFFIC_PRESETS.items():
+        store.store(group="traffic", name=name, node=dict(values), package="env.scenario")
 
 
 # ------------------------------------------------------------------- validation
@@ -213,7 +223,7 @@ class TrainSettings:
     agent: DDPGConfig
     seed: int
     eval_episodes: int
-    eval_arrival_period_steps: float
+    yardsticks: tuple[str, ...]
     device: str
     backend: str
     worker_timeout_s: float | None
@@ -221,11 +231,8 @@ class TrainSettings:
     flower: FlowerSettings = field(default_factory=FlowerSettings)
 
     def eval_env(self, task: str) -> EnvConfig:
-        """The test environment of ``task``: test traffic density (Section IV.B)."""
-        scenario = dataclasses.replace(
-            self.env.scenario, human_arrival_period_steps=self.eval_arrival_period_steps
-        )
-        return dataclasses.replace(self.env, task=task, scenario=scenario)
+        """The test environment of ``task``: the training traffic (Section IV.B)."""
+        return dataclasses.replace(self.env, task=task)
 
 
 def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
@@ -254,6 +261,12 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         value = data.get(key, 0)
         if not isinstance(value, int) or isinstance(value, bool) or value < 0:
             raise ConfigError(f"{key} must be a non-negative integer, got {value!r}")
+    yardsticks = tuple(data.get("yardsticks", ()))
+    unknown_yardsticks = [name for name in yardsticks if name not in YARDSTICKS]
+    if unknown_yardsticks:
+        raise ConfigError(
+            f"unknown yardstick {unknown_yardsticks[0]!r}; choose from {', '.join(YARDSTICKS)}"
+        )
     flower = _flower_settings(federation)
     timeout = federation.get("worker_timeout_s", 3600.0)
     if timeout is not None and not timeout > 0:
@@ -279,8 +292,6 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         env_config = EnvConfig(scenario=scenario, grid=GridConfig(**grid_fields), **env)
         reward_config = RewardConfig(**reward)
         agent_config = DDPGConfig.from_dict(agent)
-        period = float(data.get("eval_arrival_period_steps", 10.0))
-        ScenarioConfig(human_arrival_period_steps=period)  # range check
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
     if (
@@ -299,7 +310,7 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         agent=agent_config,
         seed=int(data.get("seed", 0)),
         eval_episodes=int(data.get("eval_episodes", 100)),
-        eval_arrival_period_steps=period,
+        yardsticks=yardsticks,
         device=str(data.get("device", "cpu")),
         backend=federation.get("backend", "processes"),
         worker_timeout_s=timeout,
@@ -365,9 +376,43 @@ def _to_container(cfg: DictConfig | TrainSchema | dict[str, Any]) -> dict[str, A
 
 
 def load_run_config(run_dir: str | Path) -> DictConfig:
-    """The resolved config a run saved (``RUN_DIR/config.yaml``), checked against the schema."""
+    """The resolved config a run saved (``RUN_DIR/config.yaml``), checked against the schema.
+
+    Configs saved before a key existed are read as they ran (:func:`migrate_saved_config`).
+    """
     path = Path(run_dir) / "config.yaml"
     if not path.exists():
         raise ConfigError(f"{run_dir} is not an frl run directory: it has no config.yaml")
+    saved = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+    if not isinstance(saved, dict):
+        raise ConfigError(f"{path} is not an frl run config")
     schema = OmegaConf.structured(TrainSchema)
-    return OmegaConf.merge(schema, OmegaConf.load(path))  # type: ignore[return-value]
+    return OmegaConf.merge(schema, migrate_saved_config(saved))  # type: ignore[return-value]
+
+
+def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
+    """A run config saved by an earlier frl, with the settings it actually ran with.
+
+    - No ``env.scenario.human_speed_dev``: humans had no speed deviation then (0.0), where
+      today's default is the paper preset's 0.1.
+    - ``eval_arrival_period_steps``: tests ran on their own traffic setting; they now run
+      on ``env.scenario``. Every run saved with it tested on its training density, so the
+      key is dropped; one that differs cannot be re-tested as it was, and is refused.
+    - No ``yardsticks``: none were tested; re-testing such a run adds today's default.
+    """
+    saved = dict(saved)
+    env = dict(saved.get("env") or {})
+    scenario = dict(env.get("scenario") or {})
+    if scenario and "human_speed_dev" not in scenario:
+        scenario["human_speed_dev"] = 0.0
+        env["scenario"] = scenario
+        saved["env"] = env
+    if "eval_arrival_period_steps" in saved:
+        test_period = saved.pop("eval_arrival_period_steps")
+        train_period = scenario.get("human_arrival_period_steps", test_period)
+        if float(test_period) != float(train_period):
+            raise ConfigError(
+                f"this run tested on other traffic (eval_arrival_period_steps={test_period}) "
+                f"than it trained on ({train_period}); frl now tests on the training traffic"
+            )
+    return saved

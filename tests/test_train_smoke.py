@@ -38,7 +38,7 @@ def _scalar_tags(run_dir: Path) -> dict[str, list]:
 
 
 @pytest.mark.parametrize("scheme", ["central", "separate", "fedavg"])
-def test_each_scheme_trains_logs_and_tests(scheme, tmp_path):
+def test_each_scheme_trains_logs_and_tests(scheme, tmp_path, capsys):
     cfg = compose_config(tmp_path / "run", [f"federation={scheme}"])
 
     results = train(cfg)
@@ -64,10 +64,19 @@ def test_each_scheme_trains_logs_and_tests(scheme, tmp_path):
         assert communication["total_bytes"] == 0
     evaluation = saved["evaluation"]
     assert set(evaluation["per_task"]) == {"left", "straight", "right"}
-    for metrics in [*evaluation["per_task"].values(), evaluation["average"]]:
-        assert set(metrics) == METRIC_KEYS
+    for metrics in evaluation["per_task"].values():
+        assert set(metrics) == METRIC_KEYS | {"return_std"}  # per task: for intervals
+    assert set(evaluation["average"]) == METRIC_KEYS
     assert evaluation["per_task"]["left"]["episodes"] == 2
     assert "travel_time_definition" in evaluation
+    assert evaluation["traffic"] == "paper"
+    assert set(evaluation["yardsticks"]) == {"full_throttle", "oracle"}  # the defaults
+    for table in evaluation["yardsticks"].values():
+        assert set(table["per_task"]) == set(evaluation["per_task"])
+        assert table["per_task"]["left"]["episodes"] == 2
+    assert evaluation["yardsticks"]["oracle"]["average"]["collision_rate"] == 0.0
+    printed = capsys.readouterr().out
+    assert "full throttle (same seeds)" in printed and "oracle (same seeds)" in printed
     assert {"frl", "torch", "sumo", "python"} <= set(saved["versions"])
 
     for name in ("config.yaml", "versions.json", "state.json", "models/index.json"):
@@ -86,6 +95,7 @@ def test_each_scheme_trains_logs_and_tests(scheme, tmp_path):
     for group in ("left", "straight", "right", "average"):
         assert f"eval/{group}/average_reward" in tags
         assert f"eval/{group}/collision_rate" in tags
+        assert f"eval_yardstick/oracle/{group}/collision_rate" in tags
     hparams = EventAccumulator(str(run_dir / "tb"))
     hparams.Reload()
     assert "_hparams_/experiment" in hparams.PluginTagToContent("hparams")

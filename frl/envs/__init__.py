@@ -9,10 +9,13 @@ import gymnasium as gym
 from frl.envs.config import (
     TASK_CHOICES,
     TASKS,
+    TRAFFIC_PRESETS,
     EnvConfig,
     GridConfig,
     RewardConfig,
     ScenarioConfig,
+    traffic_name,
+    traffic_preset,
 )
 from frl.envs.intersection import IntersectionEnv
 from frl.envs.sumo_backend import SumoError
@@ -26,10 +29,13 @@ __all__ = [
     "ENV_ID",
     "TASKS",
     "TASK_CHOICES",
+    "TRAFFIC_PRESETS",
     "EnvConfig",
     "GridConfig",
     "IntersectionEnv",
     "RewardConfig",
     "ScenarioConfig",
     "SumoError",
+    "traffic_name",
+    "traffic_preset",
 ]

@@ -18,7 +18,7 @@ TASK_CHOICES: tuple[str, ...] = (*TASKS, "random")
 """Valid values of ``EnvConfig.task``; ``random`` draws one of TASKS per episode."""
 
 BACKENDS: tuple[str, ...] = ("libsumo", "traci")
-ARRIVAL_PROCESSES: tuple[str, ...] = ("poisson", "periodic")
+ARRIVAL_PROCESSES: tuple[str, ...] = ("bernoulli", "poisson", "periodic")
 REWARD_NAMES: tuple[str, ...] = ("paper", "reference")
 
 SPEED_LIMIT_MPS = 20.1168
@@ -79,18 +79,28 @@ class ScenarioConfig:
 
     arm_length: float = 100.0
     """Length (m) of each of the four arms, centre to end. Humans depart at the far end."""
-    lane_width: float = 3.2
+    lane_width: float = 4.0
+    """The scenario's lineage uses 4.0 m lanes (``dense`` keeps SUMO's default 3.2 m)."""
     speed_limit: float = SPEED_LIMIT_MPS
     step_length: float = 0.2
     """SUMO step length in seconds: one environment step."""
-    human_arrival_period_steps: float = 10.0
-    """Mean steps between two human departures, both sides of the cross road together.
+    human_arrival_period_steps: float = 25.0
+    """Mean steps between two human departures, both flows (west->east, east->west) together.
 
-    The paper's "one vehicle per 10 time steps": each of the two flows (west->east and
-    east->west) gets half that rate.
+    Each flow gets half the rate: 25 steps of 0.2 s are one car per 10 s per flow, the
+    lineage's ``probability="0.1"`` (docs/scenario.md). ``dense`` uses 10.
     """
-    human_arrival_process: str = "poisson"
-    """``poisson``: exponential headways; ``periodic``: one car every period exactly."""
+    human_arrival_process: str = "bernoulli"
+    """How each flow departs, at the mean rate above:
+
+    - ``bernoulli``: SUMO's flow ``probability``, a departure chance every step scaled to
+      a probability per second, as in the scenario's lineage;
+    - ``poisson``: exponential headways (SUMO ``period="exp(rate)"``);
+    - ``periodic``: one car every period exactly.
+    """
+    human_speed_dev: float = 0.1
+    """SUMO ``speedDev`` of the human type: each car's speed factor is drawn from
+    N(1, dev) (clipped by SUMO to [0.2, 2]). The lineage uses 0.1; ``dense`` uses 0."""
     ego_start_distance: float = 10.0
     """The ego departs this far (m, front bumper) before the stop line, at speed 0."""
     ego_destination_distance: float = 21.0
@@ -112,6 +122,13 @@ class ScenarioConfig:
             "scenario.human_arrival_period_steps must be positive "
             f"(got {self.human_arrival_period_steps})",
         )
+        _require(self.human_speed_dev >= 0, "scenario.human_speed_dev must be >= 0")
+        _require(
+            self.human_arrival_process != "bernoulli" or self.human_period_seconds >= 1.0,
+            "scenario.human_arrival_process=bernoulli needs at most one departure per second "
+            f"per flow; human_arrival_period_steps={self.human_arrival_period_steps} asks for "
+            f"one per {self.human_period_seconds:g} s",
+        )
         _require(
             self.human_arrival_process in ARRIVAL_PROCESSES,
             f"scenario.human_arrival_process must be one of {ARRIVAL_PROCESSES}, "
@@ -132,6 +149,48 @@ class ScenarioConfig:
     def human_period_seconds(self) -> float:
         """Mean headway of each of the two human flows in seconds (SUMO periods are seconds)."""
         return 2.0 * self.human_arrival_period_steps * self.step_length
+
+
+TRAFFIC_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {
+        "lane_width": 4.0,
+        "human_arrival_period_steps": 25.0,
+        "human_arrival_process": "bernoulli",
+        "human_speed_dev": 0.1,
+    },
+    "dense": {
+        "lane_width": 3.2,
+        "human_arrival_period_steps": 10.0,
+        "human_arrival_process": "poisson",
+        "human_speed_dev": 0.0,
+    },
+}
+"""The human traffic, by name (docs/scenario.md has the evidence for each):
+
+- ``paper`` (the default): one car per 10 s per flow, 4.0 m lanes, speed deviation 0.1,
+  the traffic of the scenario's lineage, whose numbers match the paper's;
+- ``dense``: one car per 4 s per flow, 3.2 m lanes, no speed deviation: frl's traffic
+  before the calibration (the first edition of docs/results.md), a harder setting.
+
+``python -m frl.train traffic=dense`` selects one; fields stay overridable.
+"""
+
+
+def traffic_preset(name: str, **overrides: Any) -> ScenarioConfig:
+    """The :class:`ScenarioConfig` of the traffic preset ``name``, with field overrides."""
+    _require(
+        name in TRAFFIC_PRESETS,
+        f"unknown traffic preset {name!r}; choose one of {', '.join(TRAFFIC_PRESETS)}",
+    )
+    return ScenarioConfig(**{**TRAFFIC_PRESETS[name], **overrides})
+
+
+def traffic_name(scenario: ScenarioConfig) -> str:
+    """The preset whose traffic ``scenario`` has, or ``custom`` (for tables and reports)."""
+    for name, values in TRAFFIC_PRESETS.items():
+        if all(getattr(scenario, key) == value for key, value in values.items()):
+            return name
+    return "custom"
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
+from array import array
+from dataclasses import dataclass
 from typing import Any, ClassVar, SupportsFloat
 
 import gymnasium as gym
@@ -16,6 +19,29 @@ from frl.envs.scenario import Scenario, build_scenario
 from frl.envs.sumo_backend import BRAKE_LIGHT_BIT, EGO_ID, SumoSimulation, VehicleState
 
 _SEED_BOUND = 2**31 - 1
+
+
+@dataclass(frozen=True)
+class EnvSnapshot:
+    """Everything :meth:`IntersectionEnv.restore` needs to put the env back exactly.
+
+    SUMO's own ``saveState``/``loadState`` cannot do this mid-run: a reload restores
+    each random generator by discarding its saved draw count from the *current* state,
+    and loading the vehicles draws again from the generator that gives departing cars
+    their random speed, so the traffic after a restore drifts from the traffic without
+    one. A simulation is fully determined by its SUMO seed and the commands sent to it,
+    so the snapshot keeps those and a restore replays them.
+    """
+
+    sumo_seed: int
+    ego_speed_commands: tuple[float, ...]
+    """Every speed set on the ego since SUMO started, one per simulation step."""
+    ego_insertions: tuple[tuple[int, str], ...]
+    """(number of speed commands before it, task) for each ego inserted since the start."""
+    task: str
+    steps: int
+    done: bool
+    rng_state: dict[str, Any]
 
 
 class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -78,11 +104,20 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._ego_speed = 0.0
         self._vehicles: list[VehicleState] | None = None
         self._grid = OccupancyGrid(config.grid)
+        # The commands since SUMO last started, for restore(): see EnvSnapshot.
+        self._sumo_seed: int | None = None
+        self._speed_commands = array("d")
+        self._insertions: list[tuple[int, str]] = []
 
     @property
     def task(self) -> str:
         """The current episode's task (drawn at reset when the config says ``random``)."""
         return self._task
+
+    @property
+    def episode_steps(self) -> int:
+        """Steps taken in the current episode (0 right after ``reset``)."""
+        return self._steps
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -96,22 +131,94 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"unknown task {task!r}; choose one of {(*TASKS, 'random')}")
         simulation = self._ensure_simulation()
         if seed is not None or not simulation.is_running:
-            simulation.start(int(self.np_random.integers(_SEED_BOUND)))
-            for _ in range(self.config.warmup_steps):
-                simulation.step()
+            self._start_simulation(int(self.np_random.integers(_SEED_BOUND)))
         self._task = task
+        self._insert_ego(task)
+        self._steps = 0
+        self._done = False
+        return self._observe_reset()
+
+    def _start_simulation(self, sumo_seed: int) -> None:
+        simulation = self._ensure_simulation()
+        simulation.start(sumo_seed)
+        for _ in range(self.config.warmup_steps):
+            simulation.step()
+        self._sumo_seed = sumo_seed
+        self._speed_commands = array("d")
+        self._insertions = []
+
+    def _insert_ego(self, task: str) -> None:
+        simulation = self._ensure_simulation()
+        self._insertions.append((len(self._speed_commands), task))
         simulation.insert_ego(task)
         simulation.step()
         simulation.configure_ego()
-        self._vehicles = simulation.vehicles()
+
+    def _advance(self, speed: float) -> Any:
+        """Set the ego's speed and run one simulation step; the step's events."""
+        assert self._simulation is not None
+        self._speed_commands.append(speed)
+        self._simulation.set_ego_speed(speed)
+        return self._simulation.step()
+
+    def _observe_reset(self) -> tuple[np.ndarray, dict[str, Any]]:
+        assert self._simulation is not None
+        self._vehicles = self._simulation.vehicles()
         ego = _find_ego(self._vehicles)
         if ego is None:
             raise RuntimeError("SUMO did not insert the ego vehicle")
         self._ego_speed = ego.speed
-        self._steps = 0
-        self._done = False
         observation = self._grid(self._vehicles, ego)
         return observation, self._info(collision=False, arrived=False, terms=None)
+
+    def snapshot(self) -> EnvSnapshot:
+        """The env's state now, for :meth:`restore` (a look-ahead, for instance).
+
+        It holds every command since SUMO last started, and a restore replays them all,
+        so both cost what the steps since the last seeded ``reset`` cost: use it on
+        seeded episodes, as the test protocol does.
+        """
+        if self._sumo_seed is None or self._simulation is None:
+            raise RuntimeError("snapshot() needs reset() first")
+        return EnvSnapshot(
+            sumo_seed=self._sumo_seed,
+            ego_speed_commands=tuple(self._speed_commands),
+            ego_insertions=tuple(self._insertions),
+            task=self._task,
+            steps=self._steps,
+            done=self._done,
+            rng_state=copy.deepcopy(self.np_random.bit_generator.state),
+        )
+
+    def restore(self, snapshot: EnvSnapshot) -> None:
+        """Put the env and its simulation back to ``snapshot``, exactly.
+
+        SUMO restarts with the snapshot's seed and replays the same commands, so the
+        episode continues as if nothing had happened since the snapshot.
+        """
+        self._start_simulation(snapshot.sumo_seed)
+        insertions = iter(snapshot.ego_insertions)
+        pending = next(insertions, None)
+        for index, speed in enumerate(snapshot.ego_speed_commands):
+            while pending is not None and pending[0] == index:
+                self._insert_ego(pending[1])
+                pending = next(insertions, None)
+            self._advance(speed)
+        while pending is not None:
+            self._insert_ego(pending[1])
+            pending = next(insertions, None)
+        self.np_random.bit_generator.state = copy.deepcopy(snapshot.rng_state)
+        self._task = snapshot.task
+        self._steps = snapshot.steps
+        self._done = snapshot.done
+        assert self._simulation is not None
+        self._vehicles = self._simulation.vehicles()
+        ego = _find_ego(self._vehicles)
+        self._ego_speed = (
+            ego.speed
+            if ego is not None
+            else (snapshot.ego_speed_commands[-1] if snapshot.ego_speed_commands else 0.0)
+        )
 
     def step(
         self, action: np.ndarray
@@ -125,8 +232,7 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         scenario = self.config.scenario
         speed = self._ego_speed + acceleration * scenario.step_length
         speed = min(max(speed, 0.0), scenario.speed_limit)
-        self._simulation.set_ego_speed(speed)
-        events = self._simulation.step()
+        events = self._advance(speed)
         self._steps += 1
         self._vehicles = vehicles = self._simulation.vehicles()
         ego = _find_ego(vehicles)

@@ -206,11 +206,15 @@ def _edges_xml(config: ScenarioConfig) -> str:
 
 def _routes_xml(config: ScenarioConfig) -> str:
     period = config.human_period_seconds
-    if config.human_arrival_process == "poisson":
+    if config.human_arrival_process == "bernoulli":
+        # SUMO draws a departure every step and scales this per-second probability to
+        # the step length (Simulation/Randomness): the lineage's probability="0.1".
+        depart_attr = f'probability="{1.0 / period:.10g}"'
+    elif config.human_arrival_process == "poisson":
         # SUMO's exp(rate): exponentially distributed headways, rate per second.
-        period_attr = f'period="exp({1.0 / period:.10g})"'
+        depart_attr = f'period="exp({1.0 / period:.10g})"'
     else:
-        period_attr = f'period="{period:.10g}"'
+        depart_attr = f'period="{period:.10g}"'
     size = f'length="{config.vehicle_length}" width="{config.vehicle_width}"'
     lines = [
         # Table I: both types have max speed 20.1168; speed modes are set via TraCI
@@ -218,7 +222,7 @@ def _routes_xml(config: ScenarioConfig) -> str:
         f'    <vType id="{AGENT_TYPE}" color="red" maxSpeed="{config.speed_limit}" '
         f'{size} speedFactor="1" speedDev="0"/>',
         f'    <vType id="{HUMAN_TYPE}" color="yellow" maxSpeed="{config.speed_limit}" '
-        f'{size} speedFactor="1" speedDev="0"/>',
+        f'{size} speedFactor="1" speedDev="{config.human_speed_dev:.10g}"/>',
     ]
     for task, edges in EGO_ROUTES.items():
         lines.append(f'    <route id="ego_{task}" edges="{" ".join(edges)}"/>')
@@ -227,7 +231,7 @@ def _routes_xml(config: ScenarioConfig) -> str:
     for route_id in HUMAN_ROUTES:
         lines.append(
             f'    <flow id="{route_id}" type="{HUMAN_TYPE}" route="{route_id}" begin="0" '
-            f'end="1e9" {period_attr} departSpeed="random" departLane="first"/>'
+            f'end="1e9" {depart_attr} departSpeed="random" departLane="first"/>'
         )
     return "<routes>\n" + "\n".join(lines) + "\n</routes>\n"
 

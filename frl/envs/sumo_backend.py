@@ -63,6 +63,8 @@ class StepEvents:
 
     ego_collided: bool
     ego_arrived: bool
+    departed: tuple[str, ...] = ()
+    """Vehicles that entered the network during the step (the ego included)."""
 
 
 def sumo_command(
@@ -146,12 +148,14 @@ class SumoSimulation:
         # simulation.step skips the Python step-listener bookkeeping of simulationStep.
         simulation = api.simulation
         self._guard(simulation.step)
-        for vehicle_id in simulation.getDepartedIDList():
+        departed = simulation.getDepartedIDList()
+        for vehicle_id in departed:
             if vehicle_id != EGO_ID:
                 api.vehicle.setSpeedMode(vehicle_id, HUMAN_SPEED_MODE)
         return StepEvents(
             ego_collided=EGO_ID in simulation.getCollidingVehiclesIDList(),
             ego_arrived=EGO_ID in simulation.getArrivedIDList(),
+            departed=tuple(departed),
         )
 
     def vehicles(self) -> list[VehicleState]:

@@ -97,13 +97,18 @@ class TrainingLogger:
         writer.add_scalar("server/round_time_s", round_time_s, end_step)
 
     def log_evaluation(
-        self, per_task: Mapping[str, Mapping[str, Any]], average: Mapping[str, Any], step: int
+        self,
+        per_task: Mapping[str, Mapping[str, Any]],
+        average: Mapping[str, Any],
+        step: int,
+        prefix: str = "eval",
     ) -> None:
+        """Test metrics as ``{prefix}/{task or average}/{metric}`` at ``step``."""
         for group, metrics in [*per_task.items(), ("average", average)]:
             for name in METRIC_NAMES:
                 value = metrics.get(name)
                 if value is not None and math.isfinite(value):
-                    self.writer.add_scalar(f"eval/{group}/{name}", value, step)
+                    self.writer.add_scalar(f"{prefix}/{group}/{name}", value, step)
 
     def log_hparams(self, hparams: Mapping[str, Any], metric_tags: Sequence[str]) -> None:
         """An hparams entry in this run (not in a sub-run, as ``add_hparams`` would make),

@@ -162,9 +162,15 @@ def eval_summary(runs: list[RunRecord]) -> EvalSummary | None:
     evaluated = sorted((r for r in runs if r.evaluation), key=lambda r: r.seed)
     if not evaluated:
         return None
-    summary = EvalSummary(seeds=[r.seed for r in evaluated])
+    return _summary({r.seed: r.evaluation for r in evaluated})  # type: ignore[misc]
+
+
+def _summary(tables: dict[int, dict[str, Any]]) -> EvalSummary:
+    """Estimates over seeds of test tables (``{"per_task": ..., "average": ...}``)."""
+    seeds = sorted(tables)
+    summary = EvalSummary(seeds=seeds)
     for task in (*TASKS, "average"):
-        rows = [_task_metrics(r.evaluation, task) for r in evaluated]  # type: ignore[arg-type]
+        rows = [_task_metrics(tables[seed], task) for seed in seeds]
         if all(row is None for row in rows):
             continue
         summary.metrics[task] = {
@@ -178,6 +184,19 @@ def fig5(collection: Collection) -> dict[str, EvalSummary]:
     by_scheme = _group(collection.of("fig4"), lambda r: r.scheme)
     summaries = {s: eval_summary(by_scheme[s]) for s in SCHEMES if s in by_scheme}
     return {s: v for s, v in summaries.items() if v is not None}
+
+
+def fig5_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
+    """The yardsticks the ``fig4/`` runs were tested beside, over their distinct seeds.
+
+    A yardstick's test depends on the seed and the traffic only, so every scheme of one
+    seed carries the same table; each seed counts once.
+    """
+    tables: dict[str, dict[int, dict[str, Any]]] = {}
+    for run in sorted(collection.of("fig4"), key=lambda r: (r.seed, r.scheme)):
+        for name, table in ((run.evaluation or {}).get("yardsticks") or {}).items():
+            tables.setdefault(name, {}).setdefault(run.seed, table)
+    return {name: _summary(by_seed) for name, by_seed in tables.items()}
 
 
 # --------------------------------------------------------------------- Fig. 6

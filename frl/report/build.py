@@ -56,6 +56,7 @@ def build_report(
 
     curves = aggregate.fig4(collection, settings)
     summaries = aggregate.fig5(collection)
+    yardsticks = aggregate.fig5_yardsticks(collection)
     intervals = aggregate.fig6(collection, settings)
     rewards = aggregate.fig3(collection)
     blocks = {
@@ -69,7 +70,11 @@ def build_report(
             image("fig4", lambda p: plots.plot_fig4(curves, settings, p)) if curves else None,
         ),
         "fig5": markdown.fig5_block(
-            summaries, image("fig5", lambda p: plots.plot_fig5(summaries, p)) if summaries else None
+            summaries,
+            image("fig5", lambda p: plots.plot_fig5(summaries, p, yardsticks))
+            if summaries
+            else None,
+            yardsticks,
         ),
         "fig6": markdown.fig6_block(
             intervals,

@@ -247,20 +247,28 @@ def fig4_block(curves: dict[str, SchemeCurves], settings: CurveSettings, image: 
     return text
 
 
-def fig5_block(summaries: dict[str, EvalSummary], image: str | None) -> str:
+def fig5_block(
+    summaries: dict[str, EvalSummary],
+    image: str | None,
+    yardsticks: dict[str, EvalSummary] | None = None,
+) -> str:
     if not summaries:
         return f"_{NOT_RUN}_ (needs evaluated `fig4/` runs)."
     rows = []
-    for scheme in SCHEMES:
-        s = summaries.get(scheme)
+    labelled = [(SCHEME_LABELS[scheme], summaries.get(scheme)) for scheme in SCHEMES]
+    labelled += [
+        (f"{name.replace('_', ' ')} (yardstick)", summary)
+        for name, summary in (yardsticks or {}).items()
+    ]
+    for label, s in labelled:
         for task in (*TASKS, "average"):
             if s is None:
-                rows.append([SCHEME_LABELS[scheme], task, NOT_RUN, "", "", "", ""])
+                rows.append([label, task, NOT_RUN, "", "", "", ""])
                 continue
             m = s.metrics.get(task, {})
             rows.append(
                 [
-                    SCHEME_LABELS[scheme],
+                    label,
                     task,
                     len(s.seeds),
                     fmt(m.get("average_reward")),
@@ -286,6 +294,12 @@ def fig5_block(summaries: dict[str, EvalSummary], image: str | None) -> str:
         "Central-DDPG is worst on all three metrics; FedAvg-DDPG beats Sep-DDPG on all "
         "metrics and markedly lowers collisions on every task."
     )
+    if yardsticks:
+        text += (
+            " The yardstick rows (frl.policies) were tested on the same seeds and traffic as "
+            "the schemes: full throttle never brakes; the oracle waits with hindsight for a "
+            "clean start, then goes at full throttle (docs/scenario.md)."
+        )
     return text
 
 

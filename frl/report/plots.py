@@ -21,6 +21,12 @@ from frl.report.aggregate import (
 from frl.report.stats import Estimate
 
 COLORS = {"central": "tab:red", "separate": "tab:blue", "fedavg": "tab:green"}
+YARDSTICK_STYLES = {
+    "full_throttle": {"color": "black", "linestyle": "--"},
+    "oracle": {"color": "tab:purple", "linestyle": "-"},
+    "gap_acceptance": {"color": "tab:orange", "linestyle": "-."},
+    "always_brake": {"color": "gray", "linestyle": ":"},
+}
 
 
 def _pyplot():  # type: ignore[no-untyped-def]
@@ -80,8 +86,13 @@ def plot_fig4(curves: dict[str, SchemeCurves], settings: CurveSettings, path: Pa
     return _save(figure, path)
 
 
-def plot_fig5(summaries: dict[str, EvalSummary], path: Path) -> Path:
-    """Test reward, collision rate and travel time per task and scheme, with 95% CIs."""
+def plot_fig5(
+    summaries: dict[str, EvalSummary],
+    path: Path,
+    yardsticks: dict[str, EvalSummary] | None = None,
+) -> Path:
+    """Test reward, collision rate and travel time per task and scheme, with 95% CIs;
+    each yardstick (same seeds) as a horizontal mark across its task's bars."""
     plt = _pyplot()
     panels = (
         ("average_reward", "average reward"),
@@ -103,10 +114,24 @@ def plot_fig5(summaries: dict[str, EvalSummary], path: Path) -> Path:
                 color=COLORS[scheme],
                 label=f"{SCHEME_LABELS[scheme]} (n={len(summary.seeds)})",
             )
+        for name, summary in (yardsticks or {}).items():
+            style = YARDSTICK_STYLES.get(name, {"color": "black", "linestyle": ":"})
+            for i, task in enumerate(TASKS):
+                value = _val(summary.metrics.get(task, {}).get(metric))
+                axis.hlines(
+                    value,
+                    x[i] - 0.45,
+                    x[i] + 0.45,
+                    linewidth=1.6,
+                    label=f"{name.replace('_', ' ')} (same seeds)" if i == 0 else None,
+                    **style,
+                )
         axis.set_xticks(x, TASKS)
         axis.set_title(title)
         axis.grid(axis="y", alpha=0.3)
-    axes[0].legend()
+    handles, labels = axes[0].get_legend_handles_labels()
+    # Below the panels: inside, it would hide the yardstick marks.
+    figure.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.02), ncol=5)
     figure.suptitle("Fig. 5: test performance per task, mean and 95% CI over seeds")
     return _save(figure, path)
 

@@ -1,0 +1,63 @@
+"""Yardstick policies: what a blind, a rule-based and a clairvoyant driver score.
+
+A trained model means little on its own: these four, tested on the same seeds, say
+how far it is from driving blind and from the best any policy could do.
+
+- ``full_throttle``: accelerate from the first step, never brake;
+- ``always_brake``: never leave the stop line;
+- ``gap_acceptance``: a rule-based driver reading only the grid
+  (:class:`GapAcceptancePolicy`);
+- ``oracle``: waits with hindsight for the best moment, then goes at full throttle
+  (:class:`LookaheadOracle`; it reads the simulation): never collides; the quickest safe
+  driver of the "wait, then go" family.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from frl.envs.intersection import IntersectionEnv
+from frl.policies.blind import ConstantPolicy, always_brake, full_throttle
+from frl.policies.gap_acceptance import GapAcceptancePolicy
+from frl.policies.oracle import LookaheadOracle, Rollout
+
+Policy = Callable[[np.ndarray], np.ndarray]
+
+YARDSTICKS: tuple[str, ...] = ("full_throttle", "always_brake", "gap_acceptance", "oracle")
+"""The yardstick names, in the order tables list them."""
+
+YARDSTICK_LABELS: dict[str, str] = {
+    "full_throttle": "full throttle",
+    "always_brake": "always brake",
+    "gap_acceptance": "gap acceptance",
+    "oracle": "oracle",
+}
+
+
+def make_yardstick(name: str, env: IntersectionEnv) -> Policy:
+    """The yardstick ``name`` for episodes on ``env`` (the oracle drives ``env`` itself)."""
+    if name == "full_throttle":
+        return full_throttle()
+    if name == "always_brake":
+        return always_brake()
+    if name == "gap_acceptance":
+        return GapAcceptancePolicy(env.config)
+    if name == "oracle":
+        return LookaheadOracle(env)
+    raise ValueError(f"unknown policy {name!r}; choose one of {', '.join(YARDSTICKS)}")
+
+
+__all__ = [
+    "YARDSTICKS",
+    "YARDSTICK_LABELS",
+    "ConstantPolicy",
+    "GapAcceptancePolicy",
+    "LookaheadOracle",
+    "Policy",
+    "Rollout",
+    "always_brake",
+    "full_throttle",
+    "make_yardstick",
+]

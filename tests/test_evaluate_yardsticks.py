@@ -1,0 +1,121 @@
+"""Yardsticks from one command, cached, beside the model; the traffic setting in configs."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from hydra.errors import ConfigCompositionException
+from omegaconf import OmegaConf
+from train_helpers import compose_config
+
+from frl import evaluate
+from frl.envs import EnvConfig, IntersectionEnv, traffic_preset
+from frl.episodes import run_episodes, summarize
+from frl.federation.plan import evaluation_seeds
+from frl.policies import full_throttle
+from frl.train_config import ConfigError, load_run_config, migrate_saved_config, validate
+from frl.yardsticks import cache_dir
+
+REPO = Path(__file__).resolve().parents[1]
+OLD_RUN = REPO / "docs" / "results" / "data" / "fig4" / "fedavg-seed0"
+
+
+def test_unknown_policy_fails_with_the_valid_names(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate.main(["--policy", "brave"])
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert "unknown policy 'brave'" in error
+    for name in ("full_throttle", "always_brake", "gap_acceptance", "oracle", "all"):
+        assert name in error
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--policy", "oracle", "--task", "uturn"], "unknown task 'uturn'"),
+        (["--policy", "oracle", "--traffic", "rush"], "unknown traffic 'rush'"),
+        ([], "give a RUN_DIR"),
+        (["some/run", "--traffic", "dense"], "go with --policy"),
+        (["--policy", "oracle", "--episodes", "0"], "--episodes must be positive"),
+    ],
+)
+def test_bad_arguments_fail_before_any_episode(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate.main(argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_yardstick_table_from_one_command_matches_the_episodes_and_is_cached(capsys, monkeypatch):
+    argv = ["--policy", "full_throttle", "--task", "left", "--traffic", "dense", "--seed", "1"]
+    argv += ["--episodes", "3", "--no-progress"]
+    assert evaluate.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "traffic dense, seed 1: 3 test episodes per task" in out
+    assert "full throttle" in out and "left" in out
+
+    # The same seeds driven directly give the same table.
+    env = IntersectionEnv(EnvConfig(task="left", scenario=traffic_preset("dense")))
+    try:
+        direct = summarize(
+            run_episodes(env, full_throttle(), "left", evaluation_seeds(1, "left", 3))
+        )
+    finally:
+        env.close()
+    settings = evaluate.default_settings("dense", 1)
+    tables = evaluate.evaluate_policies(settings, ["left"], 3, ["full_throttle"])
+    assert tables["full_throttle"]["left"] == direct
+    assert any(cache_dir().glob("*.json"))
+
+    # Cached now: no worker starts for it again.
+    def no_workers(*args, **kwargs):
+        raise AssertionError("a cached yardstick started workers")
+
+    monkeypatch.setattr(evaluate, "WorkerPool", no_workers)
+    assert evaluate.main(argv) == 0
+    assert "full throttle" in capsys.readouterr().out
+
+
+def test_yardsticks_join_an_old_runs_results_on_its_seeds(tmp_path, capsys):
+    run_dir = tmp_path / "old-run"
+    shutil.copytree(OLD_RUN, run_dir)
+    results = json.loads((run_dir / "results.json").read_text())
+    results["evaluation"]["episodes_per_task"] = 2  # keep the test short
+    (run_dir / "results.json").write_text(json.dumps(results))
+
+    assert evaluate.main([str(run_dir), "--policy", "always_brake", "--episodes", "2",
+                          "--no-progress"]) == 0  # fmt: skip
+    assert "traffic dense, seed 0" in capsys.readouterr().out  # the run's own traffic
+    saved = json.loads((run_dir / "results.json").read_text())
+    table = saved["evaluation"]["yardsticks"]["always_brake"]
+    assert set(table["per_task"]) == {"left", "straight", "right"}
+    assert table["average"]["collision_rate"] == 0.0
+    assert saved["evaluation"]["per_task"] == results["evaluation"]["per_task"]  # untouched
+
+
+def test_traffic_is_one_hydra_choice_for_training_and_testing():
+    default = validate(compose_config(None))
+    assert default.env.scenario == traffic_preset("paper")
+    dense = validate(compose_config(None, ["traffic=dense"]))
+    assert dense.env.scenario == traffic_preset("dense")
+    assert dense.eval_env("left").scenario == dense.env.scenario
+    tuned = validate(compose_config(None, ["traffic=dense", "env.scenario.lane_width=3.6"]))
+    assert tuned.env.scenario == traffic_preset("dense", lane_width=3.6)
+    with pytest.raises(ConfigCompositionException):
+        compose_config(None, ["traffic=rush"])
+    with pytest.raises(ConfigError, match="unknown yardstick 'brave'"):
+        validate(compose_config(None, ["yardsticks=[brave]"]))
+
+
+def test_runs_saved_before_the_presets_load_as_they_ran(tmp_path):
+    settings = validate(load_run_config(OLD_RUN))
+    assert settings.env.scenario == traffic_preset("dense")  # no speed deviation then
+    saved = OmegaConf.to_container(OmegaConf.load(OLD_RUN / "config.yaml"))
+    saved["eval_arrival_period_steps"] = 20.0  # tested on other traffic than it trained on
+    with pytest.raises(ConfigError, match="tested on other traffic"):
+        migrate_saved_config(saved)
+    (tmp_path / "config.yaml").write_text("- not\n- a mapping\n")
+    with pytest.raises(ConfigError, match="not an frl run config"):
+        load_run_config(tmp_path)
