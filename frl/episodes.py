@@ -47,6 +47,14 @@ class EpisodeRecord:
     """Steps the episode lasted (``info["travel_time_steps"]`` at its end)."""
     end_step: int = 0
     """The client's environment step at which the episode ended (training only)."""
+    mean_speed: float | None = None
+    """The ego's mean speed over the episode's steps (m/s)."""
+    stopped_steps: int | None = None
+    """Steps the ego stood still (speed at or below the reward's ``moving_speed``)."""
+    critic_bias: float | None = None
+    """Training only: mean over the episode's steps of Q(s_t, a_t) - G_t, the critic's
+    value against the discounted return actually received; None for a truncated episode
+    (its return after the cut is unknown)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -59,11 +67,14 @@ def run_episode(env: IntersectionEnv, policy: Policy, task: str, seed: int | Non
     """Play one episode of ``task`` with ``policy``; ``seed`` restarts SUMO (None continues)."""
     observation, info = env.reset(seed=seed, options={"task": task})
     total = 0.0
+    speeds = []
     while True:
         observation, reward, terminated, truncated, info = env.step(policy(observation))
         total += float(reward)
+        speeds.append(info["ego_speed"])
         if terminated or truncated:
             break
+    mean_speed, stopped = speed_summary(speeds, env.reward_config.moving_speed)
     return EpisodeRecord(
         task=info["task"],
         episode_return=total,
@@ -71,7 +82,15 @@ def run_episode(env: IntersectionEnv, policy: Policy, task: str, seed: int | Non
         arrived=bool(info["arrived"]),
         timeout=bool(truncated and not terminated),
         steps=int(info["travel_time_steps"]),
+        mean_speed=mean_speed,
+        stopped_steps=stopped,
     )
+
+
+def speed_summary(speeds: Sequence[float], moving_speed: float) -> tuple[float, int]:
+    """The mean of an episode's per-step ego speeds, and how many steps it stood still."""
+    values = np.asarray(speeds, dtype=np.float64)
+    return float(values.mean()) if values.size else 0.0, int(np.sum(values <= moving_speed))
 
 
 def run_episodes(

@@ -71,7 +71,7 @@ def test_update_is_empty_before_learning_starts_then_counts() -> None:
     agent = DDPG(GRID, ACCEL, SMALL)
     losses = run(agent, 25)
     assert all(loss == {} for loss in losses[:19])
-    assert set(losses[19]) == {"critic_loss", "actor_loss", "q_mean"}
+    assert set(losses[19]) == {"critic_loss", "actor_loss", "q_mean", "td_error"}
     assert agent.num_env_steps == 25 and agent.num_updates == 6
 
 
@@ -264,3 +264,37 @@ def test_checkpoint_of_another_config_or_version_raises(tmp_path: Path) -> None:
 def test_rejects_unbounded_action_space() -> None:
     with pytest.raises(ValueError, match="finite"):
         DDPG(GRID, spaces.Box(-np.inf, np.inf, (1,)), SMALL)
+
+
+def test_td_error_is_the_mean_absolute_gap_to_the_target() -> None:
+    agent = DDPG(GRID, ACCEL, SMALL)
+    run(agent, 25)
+    # The critic loss is the mean squared TD error, so |TD| averages to at most its root.
+    stats = run(agent, 1, seed=3)[0]
+    assert 0 <= stats["td_error"] <= np.sqrt(stats["critic_loss"]) + 1e-6
+
+
+def test_last_policy_action_is_nan_in_the_warm_up_then_the_noise_free_action() -> None:
+    agent = DDPG(GRID, ACCEL, SMALL)
+    obs = grid_obs(np.random.default_rng(0))
+    agent.act(obs)
+    assert np.isnan(agent.last_policy_action).all()  # uniform warm-up actions
+    run(agent, 25)
+    explored = agent.act(obs, explore=True)
+    deterministic = agent.act(obs, explore=False)
+    assert agent.last_policy_action == pytest.approx(deterministic.astype(np.float64))
+    assert explored.shape == deterministic.shape
+
+
+def test_critic_values_are_the_critics_q_of_env_unit_actions() -> None:
+    agent = DDPG(GRID, ACCEL, SMALL)
+    rng = np.random.default_rng(1)
+    obs = np.stack([grid_obs(rng) for _ in range(4)])
+    actions = np.array([[-1.0], [-0.5], [0.25], [1.0]], np.float32)
+    values = agent.critic_values(obs, actions)
+    with torch.no_grad():
+        x = torch.from_numpy(obs.reshape(4, -1))
+        inputs = SparseRows.from_dense(x) if agent.sparse else x
+        expected = agent.critic(inputs, torch.from_numpy(actions)).numpy()
+    assert values.shape == (4,)
+    np.testing.assert_allclose(values, expected, rtol=1e-6)

@@ -1,9 +1,10 @@
 """Pure maths: TD target and target-network updates against hand-computed numbers."""
 
+import numpy as np
 import pytest
 import torch
 
-from frl.agents import hard_update, soft_update, td_target
+from frl.agents import discounted_returns, hard_update, soft_update, td_target
 
 
 def test_soft_update_matches_hand_computed_polyak_average() -> None:
@@ -42,3 +43,9 @@ def test_td_target_cuts_bootstrap_only_on_termination() -> None:
     next_q = torch.tensor([10.0, 10.0])
     # 1 + 0.9 * 10 = 10; terminal: just the reward.
     assert torch.allclose(td_target(rewards, terminated, next_q, 0.9), torch.tensor([10.0, 1.0]))
+
+
+def test_discounted_returns_match_hand_computed_values() -> None:
+    # G2 = 3; G1 = 2 + 0.5 * 3 = 3.5; G0 = 1 + 0.5 * 3.5 = 2.75
+    np.testing.assert_allclose(discounted_returns([1.0, 2.0, 3.0], 0.5), [2.75, 3.5, 3.0])
+    assert discounted_returns([], 0.99).shape == (0,)

@@ -38,6 +38,15 @@ def test_local_training_reports_steps_episodes_and_parameters(client):
     # The reported returns are the sums of the step rewards of each episode.
     first = update.episodes[0]
     assert first.episode_return == pytest.approx(float(update.step_rewards[: first.steps].sum()))
+    # Diagnostics: the actions driven and proposed, speeds, critic bias.
+    executed, policy = update.actions["executed"], update.actions["policy"]
+    assert executed.shape == policy.shape == (70,)
+    assert np.all(np.abs(executed) <= 1.0)
+    assert np.isnan(policy[:20]).all() and np.isfinite(policy[20:]).all()  # warm-up: uniform
+    for episode in update.episodes:
+        assert 0 <= episode.stopped_steps <= episode.steps
+        assert 0 <= episode.mean_speed <= 20.2
+        assert (episode.critic_bias is None) == episode.timeout
 
 
 def test_upload_options(client):

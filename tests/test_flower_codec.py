@@ -30,8 +30,9 @@ def test_a_local_update_survives_its_parts():
         num_steps=3,
         total_steps=83,
         step_rewards=np.array([0.1, -0.2, 0.3], np.float32),
-        episodes=[EpisodeRecord("straight", 1.5, False, True, False, 40, 82)],
+        episodes=[EpisodeRecord("straight", 1.5, False, True, False, 40, 82, 4.2, 3, -0.75)],
         losses={"critic_loss": np.array([np.nan, 0.5, 0.25], np.float32)},
+        actions={"executed": np.array([1.0, -0.5, 0.2], np.float32)},
         parameters={"actor.layers.0.weight": torch.arange(6.0).reshape(2, 3)},
         cpu_time_s=0.75,
     )
@@ -43,6 +44,7 @@ def test_a_local_update_survives_its_parts():
     assert back.episodes == update.episodes and back.cpu_time_s == 0.75
     np.testing.assert_array_equal(back.step_rewards, update.step_rewards)
     np.testing.assert_array_equal(back.losses["critic_loss"], update.losses["critic_loss"])
+    np.testing.assert_array_equal(back.actions["executed"], update.actions["executed"])
     assert torch.equal(back.parameters["actor.layers.0.weight"], torch.arange(6.0).reshape(2, 3))
 
 

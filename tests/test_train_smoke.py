@@ -92,6 +92,15 @@ def test_each_scheme_trains_logs_and_tests(scheme, tmp_path, capsys):
         for name in ("episode_return", "episode_collision", "episode_travel_time_steps"):
             assert f"{client}/{name}" in tags
         assert f"{client}/critic_loss" in tags and f"{client}/actor_loss" in tags
+        for name in (
+            "td_error",
+            "episode_mean_speed",
+            "episode_stopped_steps",
+            "action_at_bounds",
+            "policy_action_at_bounds",
+            "policy_action_mean",
+        ):
+            assert f"{client}/{name}" in tags, name  # fmt: skip
     for group in ("left", "straight", "right", "average"):
         assert f"eval/{group}/average_reward" in tags
         assert f"eval/{group}/collision_rate" in tags

@@ -3,7 +3,7 @@
 from frl.agents.checkpoint import CheckpointError
 from frl.agents.config import DDPGConfig
 from frl.agents.ddpg import DDPG, is_target_key
-from frl.agents.functional import hard_update, soft_update, td_target
+from frl.agents.functional import discounted_returns, hard_update, soft_update, td_target
 from frl.agents.networks import Actor, Critic
 from frl.agents.noise import GaussianNoise, OrnsteinUhlenbeckNoise, make_noise
 from frl.agents.replay_buffer import Batch, ReplayBuffer
@@ -23,6 +23,7 @@ __all__ = [
     "ReplayBuffer",
     "SparseRows",
     "configure_cpu_training",
+    "discounted_returns",
     "hard_update",
     "is_target_key",
     "make_noise",

@@ -128,6 +128,9 @@ class DDPG:
             sparse_width=cfg.sparse_capacity,
         )
         self._explore_rng = np.random.default_rng(explore_seq)
+        self.last_policy_action = np.full(self.action_dim, np.nan)
+        """The deterministic policy's action (normalised to [-1, 1], before noise) behind
+        the last :meth:`act`; NaN while warm-up actions are drawn uniformly."""
         self.num_env_steps = 0
         """Transitions passed to :meth:`observe`."""
         self.num_updates = 0
@@ -164,9 +167,11 @@ class DDPG:
         cfg = self.config
         if explore and cfg.random_warmup and self.num_env_steps < cfg.learning_starts:
             action = self._explore_rng.uniform(-1.0, 1.0, size=self.action_dim)
+            self.last_policy_action = np.full(self.action_dim, np.nan)
         else:
             with torch.no_grad():
                 action = self.actor(self._flat_obs_tensor(obs))[0].double().cpu().numpy()
+            self.last_policy_action = action
             if explore:
                 action = np.clip(action + self.noise(), -1.0, 1.0)
         return self._denormalise(action)
@@ -236,7 +241,20 @@ class DDPG:
             "critic_loss": critic_loss.detach(),
             "actor_loss": actor_loss.detach(),
             "q_mean": q.detach().mean(),
+            "td_error": (q.detach() - target_q).abs().mean(),
         }
+
+    def critic_values(self, observations: Any, actions: Any) -> np.ndarray:
+        """Q(s, a) of the online critic for a batch of observations and env-unit actions."""
+        obs = np.asarray(observations, dtype=np.float32).reshape(-1, self.obs_dim)
+        normalised = self._normalise(
+            np.asarray(actions, dtype=np.float64).reshape(len(obs), -1)
+        ).astype(np.float32)
+        x = torch.from_numpy(obs)
+        inputs = SparseRows.from_dense(x).to(self.device) if self.sparse else x.to(self.device)
+        with torch.no_grad():
+            q = self.critic(inputs, torch.from_numpy(normalised).to(self.device))
+        return q.reshape(-1).double().cpu().numpy()
 
     # ---------------------------------------------------------- federated state
     def _networks(self) -> dict[str, nn.Module]:

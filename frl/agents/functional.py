@@ -1,9 +1,10 @@
-"""Pure tensor maths of DDPG: TD target and target-network updates."""
+"""Pure maths of DDPG: TD target, target-network updates, discounted returns."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -35,3 +36,17 @@ def hard_update(targets: Sequence[Tensor], sources: Sequence[Tensor]) -> None:
     if len(targets) != len(sources):
         raise ValueError(f"{len(targets)} targets but {len(sources)} sources")
     torch._foreach_copy_(list(targets), list(sources))
+
+
+def discounted_returns(rewards: Sequence[float], gamma: float) -> np.ndarray:
+    """Return-to-go ``G_t = r_t + gamma * G_{t+1}`` of every step of an episode (float64).
+
+    What a critic's Q(s_t, a_t) estimates for a policy that took these actions, when the
+    episode ended by termination (a truncated episode's tail is missing).
+    """
+    returns = np.empty(len(rewards), np.float64)
+    running = 0.0
+    for t in range(len(rewards) - 1, -1, -1):
+        running = float(rewards[t]) + gamma * running
+        returns[t] = running
+    return returns

@@ -21,13 +21,18 @@ from pathlib import Path
 import numpy as np
 from torch import Tensor
 
-from frl.agents import DDPG, DDPGConfig, is_target_key
+from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
-from frl.episodes import EpisodeRecord, Policy, run_episodes
+from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
 from frl.fileio import write_json_atomic
 
-LOSS_NAMES: tuple[str, ...] = ("critic_loss", "actor_loss", "q_mean")
-"""Per-step learning statistics a client reports (NaN on steps without an update)."""
+LOSS_NAMES: tuple[str, ...] = ("critic_loss", "actor_loss", "q_mean", "td_error")
+"""Per-step learning statistics a client reports (NaN on steps without an update);
+``td_error`` is the batch's mean |Q(s, a) - (r + gamma Q'(s', mu'(s')))|."""
+
+ACTION_SERIES: tuple[str, ...] = ("executed", "policy")
+"""Per-step actions a client reports: what it drove (noise and warm-up included), and
+what its deterministic policy proposed before the noise (NaN during the random warm-up)."""
 
 PROGRESS_EVERY_STEPS = 100
 
@@ -83,6 +88,8 @@ class LocalUpdate:
     """Episodes that ended in this round."""
     losses: dict[str, np.ndarray] = field(default_factory=dict)
     """float32 (num_steps,) per name in :data:`LOSS_NAMES`, NaN where no update ran."""
+    actions: dict[str, np.ndarray] = field(default_factory=dict)
+    """float32 (num_steps,) per name in :data:`ACTION_SERIES` (the first action dimension)."""
     parameters: dict[str, Tensor] | None = None
     """The model upload (a subset of the agent's federated state), or None if not asked."""
     cpu_time_s: float = 0.0
@@ -121,6 +128,11 @@ class VehicleClient:
         self._needs_restart = True
         self._episodes_total = 0
         self._last_return: float | None = None
+        # The running episode, for its diagnostics (speeds, critic bias) at its end.
+        self._episode_observations: list[np.ndarray] = []
+        self._episode_actions: list[np.ndarray] = []
+        self._episode_rewards: list[float] = []
+        self._episode_speeds: list[float] = []
 
     @property
     def name(self) -> str:
@@ -149,12 +161,15 @@ class VehicleClient:
         cpu_started, wall_started = time.process_time(), time.perf_counter()
         rewards = np.empty(num_steps, np.float32)
         losses = {name: np.full(num_steps, np.nan, np.float32) for name in LOSS_NAMES}
+        actions = {name: np.empty(num_steps, np.float32) for name in ACTION_SERIES}
         episodes: list[EpisodeRecord] = []
         for i in range(num_steps):
             if self._observation is None:
                 self._start_episode()
             observation = self._observation
             action = agent.act(observation, explore=True)
+            actions["executed"][i] = action[0]
+            actions["policy"][i] = agent.last_policy_action[0]
             next_observation, reward, terminated, truncated, info = env.step(action)
             agent.observe(observation, action, float(reward), next_observation, terminated)
             for name, value in agent.update().items():
@@ -162,8 +177,15 @@ class VehicleClient:
                     losses[name][i] = value
             rewards[i] = reward
             self._episode_return += float(reward)
+            self._episode_observations.append(observation)
+            self._episode_actions.append(action)
+            self._episode_rewards.append(float(reward))
+            self._episode_speeds.append(float(info["ego_speed"]))
             ended = terminated or truncated
             if ended:
+                mean_speed, stopped = speed_summary(
+                    self._episode_speeds, env.reward_config.moving_speed
+                )
                 episodes.append(
                     EpisodeRecord(
                         task=info["task"],
@@ -173,6 +195,9 @@ class VehicleClient:
                         timeout=bool(truncated and not terminated),
                         steps=int(info["travel_time_steps"]),
                         end_step=agent.num_env_steps,
+                        mean_speed=mean_speed,
+                        stopped_steps=stopped,
+                        critic_bias=self._critic_bias() if terminated else None,
                     )
                 )
                 self._episodes_total += 1
@@ -194,6 +219,7 @@ class VehicleClient:
             step_rewards=rewards,
             episodes=episodes,
             losses=losses,
+            actions=actions,
             parameters=self.get_parameters(include_targets) if upload else None,
             cpu_time_s=time.process_time() - cpu_started,
             wall_time_s=time.perf_counter() - wall_started,
@@ -208,7 +234,19 @@ class VehicleClient:
         else:  # a new ego in the traffic that kept flowing
             self._observation, _ = self.env.reset()
         self._episode_return = 0.0
+        self._episode_observations = []
+        self._episode_actions = []
+        self._episode_rewards = []
+        self._episode_speeds = []
         self.agent.episode_start()
+
+    def _critic_bias(self) -> float:
+        """Mean Q(s_t, a_t) - G_t over the episode that just terminated (critic bias)."""
+        q = self.agent.critic_values(
+            np.stack(self._episode_observations), np.stack(self._episode_actions)
+        )
+        returns = discounted_returns(self._episode_rewards, self.agent.config.gamma)
+        return float(np.mean(q - returns))
 
     # -------------------------------------------------------------- parameters
     def get_parameters(self, include_targets: bool = True) -> dict[str, Tensor]:

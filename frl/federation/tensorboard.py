@@ -10,7 +10,15 @@ curves of runs with different schemes, intervals or client counts line up.
 | ``client{i}_{task}/episode_collision`` | 1 if that episode ended in a collision, else 0 |
 | ``client{i}_{task}/episode_arrived`` | 1 if it arrived |
 | ``client{i}_{task}/episode_travel_time_steps`` | its length in steps |
-| ``client{i}_{task}/critic_loss`` ``actor_loss`` ``q_mean`` | mean over windows of 100 steps |
+| ``client{i}_{task}/episode_mean_speed`` | the ego's mean speed in that episode (m/s) |
+| ``client{i}_{task}/episode_stopped_steps`` | steps of that episode the ego stood still |
+| ``client{i}_{task}/episode_critic_bias`` | mean Q(s_t, a_t) - G_t over a terminated episode |
+| ``client{i}_{task}/critic_loss`` ``actor_loss`` ``q_mean`` ``td_error`` | windows of 100 steps |
+| ``client{i}_{task}/action``, ``policy_action`` | histograms, each round: actions driven,
+  and the deterministic policy's before noise |
+| ``client{i}_{task}/action_at_bounds``, ``policy_action_at_bounds`` | share at +-1
+  (abs >= 0.99), windows of 100 steps |
+| ``client{i}_{task}/policy_action_mean`` | the policy's mean action, windows of 100 steps |
 | ``server/round`` | completed aggregation rounds, at each round's last step |
 | ``server/bytes_up`` ``server/bytes_down`` | bytes up/down in that round, all clients |
 | ``server/bytes_total`` | cumulative bytes up + down |
@@ -34,6 +42,8 @@ from frl.episodes import METRIC_NAMES
 from frl.federation.client import LOSS_NAMES, LocalUpdate
 
 LOSS_WINDOW_STEPS = 100
+AT_BOUND = 0.99
+"""An action with |a| at or above this counts as saturated at the bound."""
 
 
 def step_reward_tag() -> str:
@@ -79,22 +89,53 @@ class TrainingLogger:
                 writer.add_scalar(f"{prefix}/episode_collision", float(episode.collision), step)
                 writer.add_scalar(f"{prefix}/episode_arrived", float(episode.arrived), step)
                 writer.add_scalar(f"{prefix}/episode_travel_time_steps", episode.steps, step)
+                if episode.mean_speed is not None:
+                    writer.add_scalar(f"{prefix}/episode_mean_speed", episode.mean_speed, step)
+                if episode.stopped_steps is not None:
+                    writer.add_scalar(
+                        f"{prefix}/episode_stopped_steps", episode.stopped_steps, step
+                    )
+                if episode.critic_bias is not None:
+                    writer.add_scalar(f"{prefix}/episode_critic_bias", episode.critic_bias, step)
             for name in LOSS_NAMES:
                 values = update.losses.get(name)
-                if values is None:
-                    continue
-                for begin in range(0, len(values), LOSS_WINDOW_STEPS):
-                    window = values[begin : begin + LOSS_WINDOW_STEPS]
-                    window = window[np.isfinite(window)]
-                    if window.size:
-                        end = start_step + min(begin + LOSS_WINDOW_STEPS, len(values))
-                        writer.add_scalar(f"{prefix}/{name}", float(window.mean()), end)
+                if values is not None:
+                    self._windows(f"{prefix}/{name}", values, start_step, np.mean)
+            self._log_actions(prefix, update.actions, start_step)
         end_step = start_step + len(rewards)
         writer.add_scalar("server/round", round_number, end_step)
         writer.add_scalar("server/bytes_up", bytes_up, end_step)
         writer.add_scalar("server/bytes_down", bytes_down, end_step)
         writer.add_scalar("server/bytes_total", bytes_total, end_step)
         writer.add_scalar("server/round_time_s", round_time_s, end_step)
+
+    def _log_actions(self, prefix: str, actions: Mapping[str, np.ndarray], start_step: int) -> None:
+        """Histograms per round and saturation per window: a policy stuck at +-1 shows."""
+        end = start_step + max((len(v) for v in actions.values()), default=0)
+        for series, tag in (("executed", "action"), ("policy", "policy_action")):
+            values = actions.get(series)
+            if values is None:
+                continue
+            finite = values[np.isfinite(values)]
+            if finite.size:
+                self.writer.add_histogram(f"{prefix}/{tag}", finite, end)
+            self._windows(
+                f"{prefix}/{tag}_at_bounds",
+                values,
+                start_step,
+                lambda w: np.mean(np.abs(w) >= AT_BOUND),
+            )
+            if series == "policy":
+                self._windows(f"{prefix}/policy_action_mean", values, start_step, np.mean)
+
+    def _windows(self, tag: str, values: np.ndarray, start_step: int, statistic: Any) -> None:
+        """``statistic`` of the finite values of each window of LOSS_WINDOW_STEPS steps."""
+        for begin in range(0, len(values), LOSS_WINDOW_STEPS):
+            window = values[begin : begin + LOSS_WINDOW_STEPS]
+            window = window[np.isfinite(window)]
+            if window.size:
+                end = start_step + min(begin + LOSS_WINDOW_STEPS, len(values))
+                self.writer.add_scalar(tag, float(statistic(window)), end)
 
     def log_evaluation(
         self,

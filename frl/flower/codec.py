@@ -30,6 +30,7 @@ from frl.flower.frames import Arrays, prefixed, unprefixed
 
 PARAMETER_PREFIX = "param/"
 LOSS_PREFIX = "loss/"
+ACTION_PREFIX = "action/"
 STEP_REWARDS = "step_rewards"
 
 
@@ -72,12 +73,13 @@ def arrays_to_tensors(arrays: Mapping[str, np.ndarray]) -> dict[str, Tensor]:
 def update_to_parts(update: LocalUpdate) -> tuple[Arrays | None, Arrays, dict[str, Any]]:
     """``(parameters, series, summary)`` of a :class:`LocalUpdate`.
 
-    ``parameters`` is the model upload (or None), ``series`` the per-step rewards and
-    losses, ``summary`` the scalars and episode records as plain JSON types.
+    ``parameters`` is the model upload (or None), ``series`` the per-step rewards,
+    losses and actions, ``summary`` the scalars and episode records as plain JSON types.
     """
     parameters = None if update.parameters is None else tensors_to_arrays(update.parameters)
     series = {STEP_REWARDS: np.asarray(update.step_rewards, np.float32)}
     series.update(prefixed(update.losses, LOSS_PREFIX))
+    series.update(prefixed(update.actions, ACTION_PREFIX))
     summary = {
         "client": update.client,
         "num_steps": update.num_steps,
@@ -102,6 +104,9 @@ def update_from_parts(
         step_rewards=np.asarray(series[STEP_REWARDS], np.float32),
         episodes=[EpisodeRecord(**e) for e in summary["episodes"]],
         losses={k: np.asarray(v, np.float32) for k, v in unprefixed(series, LOSS_PREFIX).items()},
+        actions={
+            k: np.asarray(v, np.float32) for k, v in unprefixed(series, ACTION_PREFIX).items()
+        },
         parameters=None if parameters is None else arrays_to_tensors(parameters),
         cpu_time_s=float(summary["cpu_time_s"]),
         wall_time_s=float(summary.get("wall_time_s", 0.0)),
