@@ -98,6 +98,9 @@ class AgentSchema:
     noise_theta: float = _AGENT.noise_theta
     noise_dt: float = _AGENT.noise_dt
     random_warmup: bool = _AGENT.random_warmup
+    warmup_hold_steps: float = _AGENT.warmup_hold_steps
+    n_step: int = _AGENT.n_step
+    preactivation_l2: float = _AGENT.preactivation_l2
     sparse_input: Any = _AGENT.sparse_input
     """true, false or auto (OmegaConf has no bool-or-str type; checked by DDPGConfig)."""
     sparse_min_features: int = _AGENT.sparse_min_features

@@ -53,6 +53,14 @@ class DDPGConfig:
     """OU time step (keras-rl and SB3 default: 1e-2)."""
     random_warmup: bool = True
     """Act uniformly at random before ``learning_starts`` when exploring (SB3 and CleanRL do)."""
+    warmup_hold_steps: float = 1.0
+    """Mean steps each uniform warm-up action is held (geometric durations); 1: a new
+    action every step. Held actions drive long stretches of braking and of accelerating."""
+    n_step: int = 1
+    """Steps summed in each critic target before bootstrapping (1: the one-step target)."""
+    preactivation_l2: float = 0.0
+    """Weight of the mean squared pre-tanh output in the actor loss: keeps the actor off
+    tanh's flat tails, where no gradient can bring a saturated action back."""
     sparse_input: bool | str = "auto"
     """First layers gather only non-zero inputs: True, False, or ``"auto"`` (large obs only)."""
     sparse_min_features: int = 256
@@ -70,6 +78,7 @@ class DDPGConfig:
         )
         for name in (
             "buffer_size",
+            "n_step",
             "batch_size",
             "train_freq",
             "gradient_steps",
@@ -103,6 +112,16 @@ class DDPGConfig:
             self.noise in NOISE_KINDS, f"noise must be one of {NOISE_KINDS}, got {self.noise!r}"
         )
         _require(self.noise_sigma >= 0, f"noise_sigma must be >= 0, got {self.noise_sigma}")
+        _require(
+            isinstance(self.warmup_hold_steps, (int, float))
+            and 1 <= self.warmup_hold_steps < math.inf,
+            f"warmup_hold_steps must be >= 1 and finite, got {self.warmup_hold_steps!r}",
+        )
+        _require(
+            isinstance(self.preactivation_l2, (int, float))
+            and 0 <= self.preactivation_l2 < math.inf,
+            f"preactivation_l2 must be >= 0 and finite, got {self.preactivation_l2!r}",
+        )
         _require(self.noise_theta >= 0, f"noise_theta must be >= 0, got {self.noise_theta}")
         _require(
             isinstance(self.noise_dt, (int, float)) and 0 < self.noise_dt < math.inf,

@@ -15,6 +15,7 @@ from torch import Tensor, nn
 from frl.agents.checkpoint import CheckpointError, read_checkpoint, write_checkpoint
 from frl.agents.config import DDPGConfig
 from frl.agents.functional import hard_update, soft_update, td_target
+from frl.agents.n_step import NStepAccumulator
 from frl.agents.networks import Actor, Critic, init_mlp_
 from frl.agents.noise import generator_state, make_noise, set_generator_state
 from frl.agents.replay_buffer import Batch, ReplayBuffer
@@ -128,6 +129,8 @@ class DDPG:
             sparse_width=cfg.sparse_capacity,
         )
         self._explore_rng = np.random.default_rng(explore_seq)
+        self._warmup_action: np.ndarray | None = None
+        self._n_step = NStepAccumulator(cfg.n_step, cfg.gamma)
         self.last_policy_action = np.full(self.action_dim, np.nan)
         """The deterministic policy's action (normalised to [-1, 1], before noise) behind
         the last :meth:`act`; NaN while warm-up actions are drawn uniformly."""
@@ -166,7 +169,7 @@ class DDPG:
         """
         cfg = self.config
         if explore and cfg.random_warmup and self.num_env_steps < cfg.learning_starts:
-            action = self._explore_rng.uniform(-1.0, 1.0, size=self.action_dim)
+            action = self._warmup_step()
             self.last_policy_action = np.full(self.action_dim, np.nan)
         else:
             with torch.no_grad():
@@ -176,12 +179,24 @@ class DDPG:
                 action = np.clip(action + self.noise(), -1.0, 1.0)
         return self._denormalise(action)
 
+    def _warmup_step(self) -> np.ndarray:
+        """A uniform action, held for a geometric number of steps (mean
+        ``warmup_hold_steps``; a fresh one every step at 1)."""
+        hold = self.config.warmup_hold_steps
+        if self._warmup_action is None or hold <= 1 or self._explore_rng.random() < 1 / hold:
+            self._warmup_action = self._explore_rng.uniform(-1.0, 1.0, size=self.action_dim)
+        return self._warmup_action
+
     def reset_noise(self) -> None:
         """Restart the exploration noise (the OU process returns to its mean)."""
         self.noise.reset()
 
     def episode_start(self) -> None:
-        """Call after every ``env.reset()``."""
+        """Call after every ``env.reset()``. A previous episode still pending n-step
+        transitions was cut off by a time limit: they bootstrap from its last state."""
+        for transition in self._n_step.flush():
+            self.buffer.add(*transition)
+        self._warmup_action = None
         self.reset_noise()
 
     def observe(
@@ -190,7 +205,13 @@ class DDPG:
         """Store a transition. Pass gymnasium's ``terminated``, not ``terminated or truncated``:
         a time-limit cut-off is not a terminal state and must still bootstrap."""
         normalised = self._normalise(np.asarray(action, dtype=np.float64).reshape(-1))
-        self.buffer.add(obs, normalised, float(reward), next_obs, bool(terminated))
+        if self.config.n_step == 1:
+            self.buffer.add(obs, normalised, float(reward), next_obs, bool(terminated))
+        else:
+            for transition in self._n_step.push(
+                obs, normalised, float(reward), next_obs, bool(terminated)
+            ):
+                self.buffer.add(*transition)
         self.num_env_steps += 1
 
     # ---------------------------------------------------------------- learning
@@ -217,7 +238,9 @@ class DDPG:
         cfg = self.config
         with torch.no_grad():
             next_q = self.critic_target(batch.next_obs, self.actor_target(batch.next_obs))
-            target_q = td_target(batch.rewards, batch.terminated, next_q, cfg.gamma)
+            # gamma**k for an n-step transition of k steps (k = 1: the one-step target).
+            discount = cfg.gamma**batch.horizons if cfg.n_step > 1 else cfg.gamma
+            target_q = td_target(batch.rewards, batch.terminated, next_q, discount)
 
         q = self.critic(batch.obs, batch.actions)
         critic_loss = F.mse_loss(q, target_q)
@@ -229,7 +252,12 @@ class DDPG:
         # weight gradients (and none for its sparse first layer), just dQ/da.
         self.critic.requires_grad_(False)
         try:
-            actor_loss = -self.critic(batch.obs, self.actor(batch.obs)).mean()
+            if cfg.preactivation_l2 > 0:
+                preactivation = self.actor.preactivation(batch.obs)
+                actor_loss = -self.critic(batch.obs, torch.tanh(preactivation)).mean()
+                actor_loss = actor_loss + cfg.preactivation_l2 * preactivation.square().mean()
+            else:
+                actor_loss = -self.critic(batch.obs, self.actor(batch.obs)).mean()
             self.actor_optimizer.zero_grad(set_to_none=True)
             actor_loss.backward()
         finally:
@@ -347,11 +375,15 @@ class DDPG:
                     "critic": self.critic_optimizer.state_dict(),
                 },
                 "noise": self.noise.state_dict(),
+                "n_step": self._n_step.state_dict(),
                 "rngs": {
                     "explore": generator_state(self._explore_rng),
                     "buffer": generator_state(self.buffer.rng),
                 },
                 "counters": {"num_env_steps": self.num_env_steps, "num_updates": self.num_updates},
+                "warmup_action": None
+                if self._warmup_action is None
+                else torch.from_numpy(self._warmup_action.copy()),
                 "buffer": self.buffer.state_dict() if include_buffer else None,
             },
             path,
@@ -380,6 +412,9 @@ class DDPG:
             self.actor_optimizer.load_state_dict(data["optimizers"]["actor"])
             self.critic_optimizer.load_state_dict(data["optimizers"]["critic"])
             self.noise.load_state_dict(data["noise"])
+            self._n_step.load_state_dict(data.get("n_step", {}))
+            held = data.get("warmup_action")
+            self._warmup_action = None if held is None else held.numpy().astype(np.float64)
             if data["buffer"] is not None:
                 self.buffer.load_state_dict(data["buffer"])
             else:
@@ -392,7 +427,8 @@ class DDPG:
             raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
 
     def _check_compatible(self, data: dict[str, Any]) -> None:
-        saved = data["config"]
+        # Keys added to DDPGConfig since a checkpoint was written read as their defaults.
+        saved = {**DDPGConfig().to_dict(), **data["config"]}
         mine = self.config.to_dict()
         differing = sorted(k for k in set(saved) | set(mine) if saved.get(k) != mine.get(k))
         if differing:

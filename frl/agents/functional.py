@@ -9,11 +9,12 @@ import torch
 from torch import Tensor
 
 
-def td_target(rewards: Tensor, terminated: Tensor, next_q: Tensor, gamma: float) -> Tensor:
-    """One-step target ``r + gamma * (1 - terminated) * Q'(s', mu'(s'))``.
+def td_target(rewards: Tensor, terminated: Tensor, next_q: Tensor, gamma: float | Tensor) -> Tensor:
+    """Target ``r + gamma * (1 - terminated) * Q'(s', mu'(s'))``.
 
     Only true terminations cut the bootstrap; a time-limit truncation must arrive here
-    with ``terminated = 0``.
+    with ``terminated = 0``. For n-step transitions ``r`` is the discounted reward sum and
+    ``gamma`` a tensor of ``gamma**k``, k the steps each one spans.
     """
     return rewards + gamma * (1.0 - terminated) * next_q
 

@@ -53,11 +53,15 @@ class Actor(nn.Module):
         first = InputLinear(obs_dim, hidden_sizes[0])
         self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, action_dim))
 
-    def forward(self, obs: Tensor | SparseRows) -> Tensor:
+    def preactivation(self, obs: Tensor | SparseRows) -> Tensor:
+        """The output layer's value before tanh."""
         x = obs
         for layer in self.layers[:-1]:
             x = torch.relu_(layer(x))  # in place: addmm's backward needs only its inputs
-        return torch.tanh(self.layers[-1](x))
+        return self.layers[-1](x)
+
+    def forward(self, obs: Tensor | SparseRows) -> Tensor:
+        return torch.tanh(self.preactivation(obs))
 
 
 class Critic(nn.Module):

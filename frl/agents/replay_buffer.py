@@ -33,6 +33,8 @@ class Batch(NamedTuple):
     rewards: Tensor
     next_obs: Tensor | SparseRows
     terminated: Tensor
+    horizons: Tensor
+    """Steps from ``obs`` to ``next_obs`` (n-step transitions; 1 for one-step ones)."""
 
 
 class _SparseStore:
@@ -123,6 +125,7 @@ class ReplayBuffer:
         self.actions = np.zeros((capacity, action_dim), dtype=np.float32)
         self.rewards = np.zeros(capacity, dtype=np.float32)
         self.terminated = np.zeros(capacity, dtype=np.float32)
+        self.horizons = np.ones(capacity, dtype=np.float32)
         self.pos = 0
         self.size = 0
 
@@ -142,8 +145,10 @@ class ReplayBuffer:
         reward: float,
         next_obs: np.ndarray,
         terminated: bool,
+        horizon: int = 1,
     ) -> None:
-        """Store one transition; ``terminated`` must exclude time-limit truncation."""
+        """Store one transition; ``terminated`` must exclude time-limit truncation.
+        ``horizon``: steps from ``obs`` to ``next_obs`` (an n-step transition's k)."""
         flat_obs = np.asarray(obs, dtype=np.float32).reshape(-1)
         flat_next = np.asarray(next_obs, dtype=np.float32).reshape(-1)
         if flat_obs.size != self.num_features or flat_next.size != self.num_features:
@@ -161,6 +166,7 @@ class ReplayBuffer:
         self.actions[slot] = np.asarray(action, dtype=np.float32).reshape(-1)
         self.rewards[slot] = reward
         self.terminated[slot] = float(terminated)
+        self.horizons[slot] = horizon
         self.pos = (slot + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
@@ -198,6 +204,7 @@ class ReplayBuffer:
             torch.from_numpy(self.rewards[slots]),
             next_obs,
             torch.from_numpy(self.terminated[slots]),
+            torch.from_numpy(self.horizons[slots]),
         )
         if torch.device(device).type == "cpu":
             return batch
@@ -212,6 +219,7 @@ class ReplayBuffer:
             "actions": torch.from_numpy(self.actions[:n].copy()),
             "rewards": torch.from_numpy(self.rewards[:n].copy()),
             "terminated": torch.from_numpy(self.terminated[:n].copy()),
+            "horizons": torch.from_numpy(self.horizons[:n].copy()),
             "rng": generator_state(self.rng),
         }
         for name in ("_obs", "_next_obs"):
@@ -246,5 +254,7 @@ class ReplayBuffer:
         self.actions[:n] = state["actions"].numpy()
         self.rewards[:n] = state["rewards"].numpy()
         self.terminated[:n] = state["terminated"].numpy()
+        # Buffers saved before n-step returns hold one-step transitions only.
+        self.horizons[:n] = state["horizons"].numpy() if "horizons" in state else 1.0
         self.pos, self.size = int(state["pos"]), n
         set_generator_state(self.rng, state["rng"])

@@ -1,0 +1,99 @@
+"""n-step returns: one-step transitions in, n-step transitions out, per episode.
+
+With n steps the critic's target is ``R + gamma^k * (1 - terminated) * Q'(s_{t+k}, .)``
+where ``R = r_t + gamma r_{t+1} + ... + gamma^(k-1) r_{t+k-1}`` and k = n, or fewer where
+the episode ended first. The +5 of an arrival 40 steps after the decision to go reaches
+that decision in 40 / n target updates instead of 40.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+
+
+class Transition(NamedTuple):
+    obs: np.ndarray
+    action: np.ndarray
+    reward: float
+    """The discounted reward sum over ``horizon`` steps."""
+    next_obs: np.ndarray
+    terminated: bool
+    horizon: int
+    """Steps between ``obs`` and ``next_obs``: the target bootstraps with gamma**horizon."""
+
+
+class NStepAccumulator:
+    """Holds the last n one-step transitions of the running episode."""
+
+    def __init__(self, n: int, gamma: float) -> None:
+        if not isinstance(n, int) or n < 1:
+            raise ValueError(f"n must be a positive integer, got {n!r}")
+        self.n = n
+        self.gamma = gamma
+        self._pending: deque[Transition] = deque()
+
+    def __len__(self) -> int:
+        return len(self._pending)
+
+    def push(
+        self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
+        terminated: bool,
+    ) -> list[Transition]:  # fmt: skip
+        """Add one step; the n-step transitions that are now complete."""
+        self._pending.append(Transition(obs, action, float(reward), next_obs, terminated, 1))
+        if terminated:
+            return self._drain(terminated=True)
+        if len(self._pending) < self.n:
+            return []
+        ready = self._combine(list(self._pending), terminated=False)
+        self._pending.popleft()
+        return [ready]
+
+    def flush(self) -> list[Transition]:
+        """The episode was cut off (a time limit, a new episode): every pending step
+        becomes a transition that bootstraps from the last state reached."""
+        return self._drain(terminated=False)
+
+    def _drain(self, terminated: bool) -> list[Transition]:
+        steps = list(self._pending)
+        self._pending.clear()
+        return [self._combine(steps[i:], terminated) for i in range(len(steps))]
+
+    def _combine(self, steps: list[Transition], terminated: bool) -> Transition:
+        reward = 0.0
+        for k, step in enumerate(steps):
+            reward += self.gamma**k * step.reward
+        first, last = steps[0], steps[-1]
+        return Transition(first.obs, first.action, reward, last.next_obs, terminated, len(steps))
+
+    def state_dict(self) -> dict[str, Any]:
+        """The pending steps as tensors (checkpoints load with ``weights_only=True``)."""
+        steps = list(self._pending)
+        if not steps:
+            return {"count": 0}
+        return {
+            "count": len(steps),
+            "obs": torch.from_numpy(np.stack([s.obs for s in steps]).astype(np.float32)),
+            "actions": torch.from_numpy(np.stack([s.action for s in steps]).astype(np.float32)),
+            "rewards": torch.tensor([s.reward for s in steps], dtype=torch.float64),
+            "next_obs": torch.from_numpy(np.stack([s.next_obs for s in steps]).astype(np.float32)),
+            "terminated": torch.tensor([s.terminated for s in steps]),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        count = int(state.get("count", 0))
+        self._pending = deque(
+            Transition(
+                state["obs"][i].numpy(),
+                state["actions"][i].numpy(),
+                float(state["rewards"][i]),
+                state["next_obs"][i].numpy(),
+                bool(state["terminated"][i]),
+                1,
+            )
+            for i in range(count)
+        )
