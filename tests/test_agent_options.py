@@ -48,7 +48,8 @@ def test_n_step_flush_bootstraps_a_cut_off_episode():
 
 
 def test_an_n_step_agent_stores_k_step_transitions_and_discounts_by_gamma_k():
-    agent = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "n_step": 3, "hidden_sizes": (16,)}))
+    config = DDPGConfig(**{**SMALL.to_dict(), "n_step": 3, "hidden_sizes": (16,)})
+    agent = DDPG(GRID, ACCEL, config)
     rng = np.random.default_rng(0)
     obs = [rng.uniform(0, 1, GRID.shape).astype(np.float32) for _ in range(5)]
     agent.episode_start()
