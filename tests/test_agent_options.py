@@ -64,15 +64,15 @@ def test_an_n_step_agent_stores_k_step_transitions_and_discounts_by_gamma_k():
 
 
 def test_held_warm_up_actions_last_geometric_stretches():
-    held = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "learning_starts": 2000,
-                                           "warmup_hold_steps": 10.0, "hidden_sizes": (16,)}))  # fmt: skip
+    options = {"learning_starts": 2000, "warmup_hold_steps": 10.0, "hidden_sizes": (16,)}
+    held = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), **options}))
     obs = np.zeros(GRID.shape, np.float32)
     actions = np.array([held.act(obs)[0] for _ in range(2000)])
     changes = int(np.sum(actions[1:] != actions[:-1]))
     assert 150 < changes < 250  # about one change in 10 steps
     assert actions.min() < -0.9 and actions.max() > 0.9  # still uniform over the range
-    fresh = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "learning_starts": 100,
-                                            "hidden_sizes": (16,)}))  # fmt: skip
+    options = {"learning_starts": 100, "hidden_sizes": (16,)}
+    fresh = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), **options}))
     default_actions = np.array([fresh.act(obs)[0] for _ in range(100)])
     assert np.all(default_actions[1:] != default_actions[:-1])  # default: a new one each step
 
