@@ -13,6 +13,8 @@ from frl.episodes import run_episodes, summarize
 from frl.policies import GapAcceptancePolicy
 from frl.recording import record_episode
 
+GIF_TASK = "left"
+
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -27,14 +29,17 @@ def main(argv: list[str] | None = None) -> None:
     scenario = traffic_preset(args.traffic)
     print(f"gap-acceptance driver, traffic {args.traffic}")
     print(f"{'task':<9} {'return':>8} {'collisions':>11} {'arrived':>8} {'travel steps':>13}")
+    seeds = range(args.seed * 1000, args.seed * 1000 + args.episodes)
+    gif_seed = seeds[0]
     for task in TASKS:
         config = EnvConfig(task=task, scenario=scenario)
         env = IntersectionEnv(config)
         try:
-            seeds = range(args.seed * 1000, args.seed * 1000 + args.episodes)
             records = run_episodes(env, GapAcceptancePolicy(config), task, seeds)
         finally:
             env.close()
+        if task == GIF_TASK:  # show a crossing: the first episode of the table that arrived
+            gif_seed = next((s for s, r in zip(seeds, records, strict=True) if r.arrived), gif_seed)
         m = summarize(records)
         collisions = sum(r.collision for r in records)
         arrivals = sum(r.arrived for r in records)
@@ -45,9 +50,9 @@ def main(argv: list[str] | None = None) -> None:
         )
     config = EnvConfig(scenario=scenario)
     path = record_episode(
-        args.gif, task="left", seed=args.seed, policy=GapAcceptancePolicy(config), config=config
+        args.gif, task=GIF_TASK, seed=gif_seed, policy=GapAcceptancePolicy(config), config=config
     )
-    print(f"saved an animated episode to {path}")
+    print(f"saved the {GIF_TASK} turn of seed {gif_seed} as an animation to {path}")
 
 
 if __name__ == "__main__":
