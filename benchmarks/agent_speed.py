@@ -6,6 +6,10 @@ hidden [512, 512, 256, 64], after the buffer is filled past ``learning_starts``.
 prints the replay buffer's memory for 100,000 grid transitions.
 
     python benchmarks/agent_speed.py [--steps 300] [--dense-steps 100] [--profile]
+        [--option n_step=1 ...]
+
+``--option KEY=VALUE`` sets a DDPGConfig field (repeatable), e.g. ``--option n_step=1``
+for the paper's one-step targets against the default agent.
 """
 
 from __future__ import annotations
@@ -44,12 +48,17 @@ class SyntheticScenes:
         return grid
 
 
-def time_agent(sparse: bool, steps: int, warmup: int, profile: bool = False) -> tuple[float, float]:
+def time_agent(
+    sparse: bool, steps: int, warmup: int, profile: bool = False, options: dict | None = None
+) -> tuple[float, float]:
     """Mean and best-block ms per act + observe + update, after ``learning_starts`` and
     ``warmup`` steps."""
     obs_space = spaces.Box(-2.0, 2.0, GRID_SHAPE, dtype=np.float32)
     act_space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
-    agent = DDPG(obs_space, act_space, DDPGConfig(sparse_input=sparse), seed=0)
+    config = DDPGConfig.from_dict(
+        {**DDPGConfig().to_dict(), **(options or {}), "sparse_input": sparse}
+    )
+    agent = DDPG(obs_space, act_space, config, seed=0)
     scenes = SyntheticScenes(np.random.default_rng(1))
     rng = np.random.default_rng(2)
     obs = scenes()
@@ -113,20 +122,32 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--skip-dense", action="store_true")
     parser.add_argument("--skip-buffer", action="store_true")
+    parser.add_argument(
+        "--option", action="append", default=[], metavar="KEY=VALUE", help="a DDPGConfig field"
+    )
     args = parser.parse_args()
+    options = {}
+    for item in args.option:
+        key, _, value = item.partition("=")
+        if key not in DDPGConfig().to_dict() or not value:
+            parser.error(f"--option {item!r}: expected KEY=VALUE with a DDPGConfig field")
+        kind = type(DDPGConfig().to_dict()[key])
+        options[key] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
 
     threads = configure_cpu_training(args.threads)
     print(
         f"torch {torch.__version__}, {threads} threads, "
         f"obs {GRID_SHAPE}, hidden [512, 512, 256, 64]"
     )
-    sparse_ms, sparse_best = time_agent(True, args.steps, args.warmup, args.profile)
+    if options:
+        print(f"options: {options}")
+    sparse_ms, sparse_best = time_agent(True, args.steps, args.warmup, args.profile, options)
     print(
         f"sparse first layer : {sparse_ms:6.1f} ms/step mean, {sparse_best:5.1f} best block "
         "(act + observe + update, batch 256)"
     )
     if not args.skip_dense:
-        dense_ms, dense_best = time_agent(False, args.dense_steps, args.warmup)
+        dense_ms, dense_best = time_agent(False, args.dense_steps, args.warmup, options=options)
         print(
             f"dense first layer  : {dense_ms:6.1f} ms/step mean, {dense_best:5.1f} best block "
             "(same agent, sparse_input=False)"

@@ -20,6 +20,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from frl.agents import DDPGConfig
+from frl.agents.config import FIELDS_ADDED_LATER
 from frl.envs import TASKS, EnvConfig, GridConfig, RewardConfig, ScenarioConfig
 from frl.envs.config import REWARD_NAMES, TRAFFIC_PRESETS
 from frl.federation.plan import BACKENDS, FLOWER_RUNTIMES, FederationPlan
@@ -402,8 +403,12 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
       on ``env.scenario``. Every run saved with it tested on its training density, so the
       key is dropped; one that differs cannot be re-tested as it was, and is refused.
     - No ``yardsticks``: none were tested; re-testing such a run adds today's default.
+    - An ``agent`` without n-step targets or held warm-up actions ran without them
+      (:data:`frl.agents.config.FIELDS_ADDED_LATER`), where today's default has both.
     """
     saved = dict(saved)
+    if isinstance(saved.get("agent"), dict):
+        saved["agent"] = {**FIELDS_ADDED_LATER, **saved["agent"]}
     env = dict(saved.get("env") or {})
     scenario = dict(env.get("scenario") or {})
     if scenario and "human_speed_dev" not in scenario:

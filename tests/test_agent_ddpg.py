@@ -84,7 +84,11 @@ def test_gradient_steps_and_train_freq() -> None:
 
 @pytest.mark.parametrize("terminated", [False, True])
 def test_truncation_bootstraps_and_termination_does_not(terminated: bool) -> None:
-    config = DDPGConfig(hidden_sizes=(16,), buffer_size=8, learning_starts=1, batch_size=4)
+    # One-step targets (Table II's agent); n-step transitions are tested in
+    # test_agent_options.py.
+    config = DDPGConfig(
+        hidden_sizes=(16,), buffer_size=8, learning_starts=1, batch_size=4, n_step=1
+    )
     agent = DDPG(GRID, ACCEL, config, seed=3)
     rng = np.random.default_rng(1)
     obs, next_obs = grid_obs(rng), grid_obs(rng)

@@ -8,7 +8,7 @@ import pytest
 import torch
 from gymnasium import spaces
 
-from frl.agents import DDPG, DDPGConfig
+from frl.agents import DDPG, CheckpointError, DDPGConfig
 from frl.agents.n_step import NStepAccumulator
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
@@ -71,10 +71,10 @@ def test_held_warm_up_actions_last_geometric_stretches():
     changes = int(np.sum(actions[1:] != actions[:-1]))
     assert 150 < changes < 250  # about one change in 10 steps
     assert actions.min() < -0.9 and actions.max() > 0.9  # still uniform over the range
-    options = {"learning_starts": 100, "hidden_sizes": (16,)}
+    options = {"learning_starts": 100, "hidden_sizes": (16,), "warmup_hold_steps": 1.0}
     fresh = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), **options}))
-    default_actions = np.array([fresh.act(obs)[0] for _ in range(100)])
-    assert np.all(default_actions[1:] != default_actions[:-1])  # default: a new one each step
+    table_two = np.array([fresh.act(obs)[0] for _ in range(100)])
+    assert np.all(table_two[1:] != table_two[:-1])  # hold 1 (Table II): a new one each step
 
 
 def test_the_preactivation_penalty_pulls_a_saturated_actor_back():
@@ -110,8 +110,10 @@ def test_options_survive_a_checkpoint_and_old_checkpoints_still_load(tmp_path: P
     agent.episode_start()
     np.testing.assert_array_equal(restored.buffer.horizons[:6], agent.buffer.horizons[:6])
 
-    # A checkpoint written before these options existed: its config lacks their keys.
-    plain = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "hidden_sizes": (16,)}))
+    # A checkpoint written before these options existed: its config lacks their keys,
+    # and its agent ran with one-step targets and fresh warm-up actions every step.
+    legacy = {"n_step": 1, "warmup_hold_steps": 1.0, "hidden_sizes": (16,)}
+    plain = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), **legacy}))
     plain.save(tmp_path / "old.pt")
     data = torch.load(tmp_path / "old.pt", weights_only=True)
     for key in ("n_step", "warmup_hold_steps", "preactivation_l2"):
@@ -119,6 +121,12 @@ def test_options_survive_a_checkpoint_and_old_checkpoints_still_load(tmp_path: P
     del data["n_step"], data["warmup_action"]
     torch.save(data, tmp_path / "old.pt")
     plain.load(tmp_path / "old.pt")
+    rebuilt = DDPG.from_checkpoint(tmp_path / "old.pt", GRID, ACCEL)
+    assert (rebuilt.config.n_step, rebuilt.config.warmup_hold_steps) == (1, 1.0)
+    with pytest.raises(CheckpointError, match="n_step"):  # not today's default agent
+        DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "hidden_sizes": (16,)})).load(
+            tmp_path / "old.pt"
+        )
 
 
 @pytest.mark.parametrize(

@@ -112,6 +112,7 @@ def test_traffic_is_one_hydra_choice_for_training_and_testing():
 def test_runs_saved_before_the_presets_load_as_they_ran(tmp_path):
     settings = validate(load_run_config(OLD_RUN))
     assert settings.env.scenario == traffic_preset("dense")  # no speed deviation then
+    assert (settings.agent.n_step, settings.agent.warmup_hold_steps) == (1, 1.0)  # Table II
     saved = OmegaConf.to_container(OmegaConf.load(OLD_RUN / "config.yaml"))
     saved["eval_arrival_period_steps"] = 20.0  # tested on other traffic than it trained on
     with pytest.raises(ConfigError, match="tested on other traffic"):

@@ -8,6 +8,14 @@ from typing import Any
 
 NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
 
+FIELDS_ADDED_LATER: dict[str, object] = {
+    "warmup_hold_steps": 1.0,
+    "n_step": 1,
+    "preactivation_l2": 0.0,
+}
+"""Fields that checkpoints and run configs written before them lack, with the values
+those agents ran with (which are not today's defaults)."""
+
 
 def _require(condition: bool, message: str) -> None:
     if not condition:
@@ -16,7 +24,9 @@ def _require(condition: bool, message: str) -> None:
 
 @dataclass(frozen=True)
 class DDPGConfig:
-    """DDPG hyperparameters. Defaults reproduce the paper's Table II where it gives a value.
+    """DDPG hyperparameters: the paper's Table II where it gives a value, plus 5-step
+    targets and held warm-up actions (``n_step=1, warmup_hold_steps=1`` is Table II's
+    agent exactly: ``agent=ddpg-paper``).
 
     Noise parameters are in normalised action units: the actor's tanh output lives in
     [-1, 1] and is scaled to the action bounds only after noise is added, so
@@ -53,11 +63,14 @@ class DDPGConfig:
     """OU time step (keras-rl and SB3 default: 1e-2)."""
     random_warmup: bool = True
     """Act uniformly at random before ``learning_starts`` when exploring (SB3 and CleanRL do)."""
-    warmup_hold_steps: float = 1.0
+    warmup_hold_steps: float = 20.0
     """Mean steps each uniform warm-up action is held (geometric durations); 1: a new
-    action every step. Held actions drive long stretches of braking and of accelerating."""
-    n_step: int = 1
-    """Steps summed in each critic target before bootstrapping (1: the one-step target)."""
+    action every step (Table II's SB3). Held actions drive long stretches of braking and
+    of accelerating, so the first updates see waiting and going (docs/results.md)."""
+    n_step: int = 5
+    """Steps summed in each critic target before bootstrapping (1: the one-step target of
+    Table II). Five carry an arrival's +5 back to the decision to go five times faster
+    (docs/results.md)."""
     preactivation_l2: float = 0.0
     """Weight of the mean squared pre-tanh output in the actor loss: keeps the actor off
     tanh's flat tails, where no gradient can bring a saturated action back."""
@@ -151,8 +164,9 @@ class DDPGConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> DDPGConfig:
-        """Inverse of :meth:`to_dict`; unknown keys raise ``TypeError``."""
-        data = dict(data)
+        """Inverse of :meth:`to_dict`; unknown keys raise ``TypeError``. Keys of
+        :data:`FIELDS_ADDED_LATER` that ``data`` lacks take the values agents had before."""
+        data = {**FIELDS_ADDED_LATER, **data}
         if "hidden_sizes" in data:
             data["hidden_sizes"] = tuple(data["hidden_sizes"])
         return cls(**data)

@@ -427,8 +427,8 @@ class DDPG:
             raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
 
     def _check_compatible(self, data: dict[str, Any]) -> None:
-        # Keys added to DDPGConfig since a checkpoint was written read as their defaults.
-        saved = {**DDPGConfig().to_dict(), **data["config"]}
+        # Keys added to DDPGConfig since a checkpoint was written read as what it ran with.
+        saved = DDPGConfig.from_dict(data["config"]).to_dict()
         mine = self.config.to_dict()
         differing = sorted(k for k in set(saved) | set(mine) if saved.get(k) != mine.get(k))
         if differing:
