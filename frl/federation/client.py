@@ -122,13 +122,12 @@ class VehicleClient:
             device=spec.device,
         )
         self._observation: np.ndarray | None = None
-        self._episode_return = 0.0
         self._restarts = 0
         """SUMO (re)starts so far; the next start uses ``training_sumo_seed(env_seed, n)``."""
         self._needs_restart = True
         self._episodes_total = 0
         self._last_return: float | None = None
-        # The running episode, for its diagnostics (speeds, critic bias) at its end.
+        # The running episode: its return, speeds and critic bias are computed at its end.
         self._episode_observations: list[np.ndarray] = []
         self._episode_actions: list[np.ndarray] = []
         self._episode_rewards: list[float] = []
@@ -176,20 +175,21 @@ class VehicleClient:
                 if name in losses:
                     losses[name][i] = value
             rewards[i] = reward
-            self._episode_return += float(reward)
             self._episode_observations.append(observation)
             self._episode_actions.append(action)
             self._episode_rewards.append(float(reward))
             self._episode_speeds.append(float(info["ego_speed"]))
             ended = terminated or truncated
             if ended:
+                # Summed in step order from 0, as a running total would be.
+                episode_return = sum(self._episode_rewards)
                 mean_speed, stopped = speed_summary(
                     self._episode_speeds, env.reward_config.moving_speed
                 )
                 episodes.append(
                     EpisodeRecord(
                         task=info["task"],
-                        episode_return=self._episode_return,
+                        episode_return=episode_return,
                         collision=bool(info["collision"]),
                         arrived=bool(info["arrived"]),
                         timeout=bool(truncated and not terminated),
@@ -201,7 +201,7 @@ class VehicleClient:
                     )
                 )
                 self._episodes_total += 1
-                self._last_return = self._episode_return
+                self._last_return = episode_return
                 self._observation = None
             else:
                 self._observation = next_observation
@@ -233,7 +233,6 @@ class VehicleClient:
             self._needs_restart = False
         else:  # a new ego in the traffic that kept flowing
             self._observation, _ = self.env.reset()
-        self._episode_return = 0.0
         self._episode_observations = []
         self._episode_actions = []
         self._episode_rewards = []
