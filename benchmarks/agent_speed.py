@@ -19,9 +19,10 @@ import time
 
 import numpy as np
 import torch
+from cpu_settings import configure_cpu_training  # beside this script
 from gymnasium import spaces
 
-from frl.agents import DDPG, DDPGConfig, ReplayBuffer, configure_cpu_training
+from frl.agents import DDPG, DDPGConfig, ReplayBuffer
 
 GRID_SHAPE = (26, 18, 3)
 

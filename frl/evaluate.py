@@ -26,7 +26,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from frl import run_directory as rundir
 from frl import yardsticks as yardstick_cache
+from frl.agents.checkpoint import read_checkpoint
 from frl.envs import TASKS, TRAFFIC_PRESETS, EnvConfig, IntersectionEnv, RewardConfig
 from frl.envs.config import traffic_name
 from frl.episodes import (
@@ -38,10 +40,8 @@ from frl.episodes import (
 )
 from frl.federation.plan import evaluation_seeds
 from frl.federation.workers import WorkerPool, threads_per_worker
-from frl.fileio import read_json, write_json_atomic
 from frl.policies import YARDSTICK_LABELS, YARDSTICKS, make_yardstick
 
-RESULTS_FILE = "results.json"
 MODEL = "model"
 """The policy name of a run's trained model(s) in :func:`evaluate_policies`."""
 SEEDS_DEFINITION = (
@@ -186,15 +186,18 @@ def evaluate_run(
     episodes = settings.eval_episodes if episodes is None else int(episodes)
     if episodes <= 0:
         raise ValueError(f"episodes must be positive, got {episodes}")
-    index_path = run_dir / "models" / "index.json"
-    if not index_path.exists():
+    try:
+        files = rundir.model_files(run_dir)
+    except rundir.RunDirectoryError:
         raise FileNotFoundError(
-            f"{run_dir} has no models/index.json: training has not finished "
-            "(resume it with `python -m frl.train resume=RUN_DIR`)"
-        )
-    model_files: dict[str, str] = read_json(index_path)
+            f"{run_dir} has no {rundir.MODELS_DIR}/{rundir.MODEL_INDEX_FILE}: training has not "
+            "finished (resume it with `python -m frl.train resume=RUN_DIR`)"
+        ) from None
+    for path in set(files.values()):  # a missing or corrupt model fails here, not in a worker
+        read_checkpoint(path)
+    model_files = {task: path.name for task, path in files.items()}
     tasks = list(model_files)
-    paths = {task: os.fspath(run_dir / "models" / name) for task, name in model_files.items()}
+    paths = {task: os.fspath(path) for task, path in files.items()}
     tested = evaluate_policies(
         settings, tasks, episodes, [MODEL, *settings.yardsticks], paths, progress
     )
@@ -209,11 +212,11 @@ def evaluate_run(
         **_table(tested.pop(MODEL)),
         "yardsticks": {name: _table(per_task) for name, per_task in tested.items()},
     }
-    _merge_into_results(run_dir, evaluation)
+    rundir.merge_evaluation(run_dir, evaluation)
     if log_tensorboard:
         from frl.federation.tensorboard import TrainingLogger
 
-        with TrainingLogger(run_dir / "tb") as logger:
+        with TrainingLogger(run_dir / rundir.TB_DIR) as logger:
             step = settings.plan.total_steps
             logger.log_evaluation(evaluation["per_task"], evaluation["average"], step)
             for name, table in evaluation["yardsticks"].items():
@@ -222,7 +225,7 @@ def evaluate_run(
                     table["per_task"], table["average"], step, prefix=f"eval_yardstick/{name}"
                 )
     if verbose:
-        print(format_table(read_json(run_dir / RESULTS_FILE)))
+        print(format_table(rundir.read_results(run_dir) or {"evaluation": evaluation}))
     return evaluation
 
 
@@ -258,8 +261,7 @@ def evaluate_yardsticks(
     tested = evaluate_policies(settings, tasks, episodes, names, progress=progress)
     tables = {name: _table(per_task) for name, per_task in tested.items()}
     if run_dir is not None:
-        results_path = Path(run_dir) / RESULTS_FILE
-        results = read_json(results_path) if results_path.exists() else {}
+        results = rundir.read_results(Path(run_dir)) or {}
         evaluation = results.get("evaluation")
         if (
             evaluation
@@ -267,7 +269,7 @@ def evaluate_yardsticks(
             and set(evaluation.get("per_task", {})) == set(tasks)
         ):
             evaluation.setdefault("yardsticks", {}).update(tables)
-            write_json_atomic(results_path, results)
+            rundir.write_results(Path(run_dir), results)
     header = (
         f"traffic {traffic_name(settings.env.scenario)}, seed {settings.seed}: "
         f"{episodes} test episodes per task"
@@ -335,11 +337,11 @@ def _run_settings(run_dir: Path) -> Any:
     return validate(load_run_config(run_dir))
 
 
-def _merge_into_results(run_dir: Path, evaluation: dict[str, Any]) -> None:
-    results_path = run_dir / RESULTS_FILE
-    results = read_json(results_path) if results_path.exists() else {}
-    results["evaluation"] = evaluation
-    write_json_atomic(results_path, results)
+def _first_line(error: BaseException) -> str:
+    if isinstance(error, FileNotFoundError) and not error.strerror:
+        return f"no such file: {error}"
+    lines = str(error).strip().splitlines()
+    return lines[0] if lines else type(error).__name__
 
 
 def _progress_bar(enabled: bool, total: int, description: str) -> Any:
@@ -413,8 +415,8 @@ def main(argv: list[str] | None = None) -> int:
                 episodes=args.episodes,
                 progress=not args.no_progress,
             )
-    except (FileNotFoundError, ValueError) as error:
-        print(f"frl.evaluate: error: {error}", file=sys.stderr)
+    except (OSError, ValueError) as error:  # a user's mistake: one line, no traceback
+        print(f"frl.evaluate: error: {_first_line(error)}", file=sys.stderr)
         return 2
     return 0
 

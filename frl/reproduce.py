@@ -6,7 +6,7 @@
     python -m frl.reproduce --export-only              # export finished runs, rebuild report
 
 Each figure is one Hydra multirun, ``python -m frl.train -m +experiment=figN``, whose
-preset (conf/experiment/) fixes the sweep, a deterministic directory per job
+preset (frl/conf/experiment/) fixes the sweep, a deterministic directory per job
 (``runs/repro/fig4/fedavg-seed0``) and ``resume=auto``: running the same command again
 skips finished jobs and continues a killed one from its last round. The preset's
 :class:`ExportRun` callback copies each finished run's small result files to

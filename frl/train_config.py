@@ -1,36 +1,45 @@
 """The training configuration: Hydra schemas, their validation and the library configs.
 
-The schema dataclasses below are registered in Hydra's ConfigStore (``train_schema``)
-and are the root of ``conf/config.yaml``, so a typo (``agent.lrr=1``) or a wrong type
-(``interval=abc``) fails while Hydra composes the config, before anything runs. Their
-defaults are read from the library dataclasses, which remain the single source of truth.
+The schemas below are registered in Hydra's ConfigStore (``train_schema``) and are the
+root of ``frl/conf/config.yaml``, so a typo (``agent.lrr=1``) or a wrong type
+(``interval=abc``) fails while Hydra composes the config, before anything runs.
 
-:func:`validate` then checks what a schema cannot (``interval`` within the budget, known
-scheme, tasks and reward, ranges) and builds the typed library configs; it raises
-:class:`ConfigError` before any process starts. Library classes never see a DictConfig.
+Each default lives in one place. The ``env``, ``agent``, ``reward`` and
+``federation.flower`` schemas, and the scheme keys of ``federation``, are generated from
+the library dataclasses (:func:`schema_of`); only keys that configure the run itself
+(``seed``, ``eval_episodes``, the federation backend, ...) are declared here.
+:func:`validate` fills what a config leaves out from these schemas, checks what a schema
+cannot (``interval`` within the budget, known scheme, tasks and reward, ranges) and
+builds the typed library configs; it raises :class:`ConfigError` before any process
+starts. Library classes never see a DictConfig.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import types
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from frl.agents import DDPGConfig
 from frl.agents.config import FIELDS_ADDED_LATER
-from frl.envs import TASKS, EnvConfig, GridConfig, RewardConfig, ScenarioConfig
+from frl.envs import EnvConfig, RewardConfig
 from frl.envs.config import REWARD_NAMES, TRAFFIC_PRESETS
-from frl.federation.plan import BACKENDS, FLOWER_RUNTIMES, FederationPlan
+from frl.federation.client import ClientSpec
+from frl.federation.plan import (
+    FEDERATION_BACKENDS,
+    FLOWER_RUNTIMES,
+    FederationPlan,
+    client_seeds,
+    initial_model_seed,
+)
 from frl.policies import YARDSTICKS
-
-_ENV = EnvConfig()
-_SCENARIO = ScenarioConfig()
-_GRID = GridConfig()
-_AGENT = DDPGConfig()
-_REWARD = RewardConfig()
+from frl.run_directory import read_saved_config
 
 
 class ConfigError(ValueError):
@@ -38,98 +47,69 @@ class ConfigError(ValueError):
 
 
 # ---------------------------------------------------------------- Hydra schemas
-@dataclass
-class ScenarioSchema:
-    """:class:`frl.envs.ScenarioConfig` (docs/scenario.md)."""
+def schema_of(
+    library_class: type,
+    name: str,
+    exclude: tuple[str, ...] = (),
+    leading: tuple[tuple[str, type, Any], ...] = (),
+    trailing: tuple[tuple[str, type, Any], ...] = (),
+) -> type:
+    """A Hydra schema dataclass with the fields and defaults of ``library_class``.
 
-    arm_length: float = _SCENARIO.arm_length
-    lane_width: float = _SCENARIO.lane_width
-    speed_limit: float = _SCENARIO.speed_limit
-    step_length: float = _SCENARIO.step_length
-    human_arrival_period_steps: float = _SCENARIO.human_arrival_period_steps
-    human_arrival_process: str = _SCENARIO.human_arrival_process
-    human_speed_dev: float = _SCENARIO.human_speed_dev
-    ego_start_distance: float = _SCENARIO.ego_start_distance
-    ego_destination_distance: float = _SCENARIO.ego_destination_distance
-    vehicle_length: float = _SCENARIO.vehicle_length
-    vehicle_width: float = _SCENARIO.vehicle_width
-
-
-@dataclass
-class GridSchema:
-    """:class:`frl.envs.GridConfig`: the Eq. (1) observation grid."""
-
-    lateral_range: list[float] = field(default_factory=lambda: list(_GRID.lateral_range))
-    lateral_cells: int = _GRID.lateral_cells
-    longitudinal_range: list[float] = field(default_factory=lambda: list(_GRID.longitudinal_range))
-    longitudinal_cells: int = _GRID.longitudinal_cells
-    speed_scale: float = _GRID.speed_scale
-    heading_scale_deg: float = _GRID.heading_scale_deg
-
-
-@dataclass
-class EnvSchema:
-    """:class:`frl.envs.EnvConfig` without ``task``, which the scheme decides."""
-
-    max_episode_steps: int = _ENV.max_episode_steps
-    accel_scale: float = _ENV.accel_scale
-    warmup_steps: int = _ENV.warmup_steps
-    backend: str = _ENV.backend
-    scenario: ScenarioSchema = field(default_factory=ScenarioSchema)
-    grid: GridSchema = field(default_factory=GridSchema)
+    OmegaConf knows neither tuples nor unions other than ``X | None``, so tuples become
+    lists and other unions ``Any`` (the library class checks them); nested library
+    dataclasses become nested schemas. ``leading`` and ``trailing`` add
+    ``(name, type, default)`` fields that only the training config has.
+    """
+    hints = typing.get_type_hints(library_class)
+    defaults = library_class()
+    specs: list[tuple[str, Any, Any]] = [_schema_field(*extra) for extra in leading]
+    for library_field in dataclasses.fields(library_class):
+        if library_field.name in exclude:
+            continue
+        value = getattr(defaults, library_field.name)
+        kind = hints[library_field.name]
+        if dataclasses.is_dataclass(kind):
+            nested = schema_of(kind, f"{kind.__name__.removesuffix('Config')}Schema")
+            specs.append((library_field.name, nested, field(default_factory=nested)))
+        else:
+            specs.append(_schema_field(library_field.name, _schema_type(kind), value))
+    specs += [_schema_field(*extra) for extra in trailing]
+    schema = dataclasses.make_dataclass(name, specs)
+    schema.__doc__ = (
+        f"The Hydra schema of :class:`{library_class.__module__}.{library_class.__name__}`."
+    )
+    return schema
 
 
-@dataclass
-class AgentSchema:
-    """:class:`frl.agents.DDPGConfig` (the paper's Table II) plus the algorithm's name."""
-
-    name: str = "ddpg"
-    hidden_sizes: list[int] = field(default_factory=lambda: list(_AGENT.hidden_sizes))
-    buffer_size: int = _AGENT.buffer_size
-    learning_starts: int = _AGENT.learning_starts
-    batch_size: int = _AGENT.batch_size
-    tau: float = _AGENT.tau
-    gamma: float = _AGENT.gamma
-    actor_lr: float = _AGENT.actor_lr
-    critic_lr: float = _AGENT.critic_lr
-    train_freq: int = _AGENT.train_freq
-    gradient_steps: int = _AGENT.gradient_steps
-    noise: str = _AGENT.noise
-    noise_sigma: float = _AGENT.noise_sigma
-    noise_theta: float = _AGENT.noise_theta
-    noise_dt: float = _AGENT.noise_dt
-    random_warmup: bool = _AGENT.random_warmup
-    warmup_hold_steps: float = _AGENT.warmup_hold_steps
-    n_step: int = _AGENT.n_step
-    preactivation_l2: float = _AGENT.preactivation_l2
-    sparse_input: Any = _AGENT.sparse_input
-    """true, false or auto (OmegaConf has no bool-or-str type; checked by DDPGConfig)."""
-    sparse_min_features: int = _AGENT.sparse_min_features
-    sparse_capacity: int = _AGENT.sparse_capacity
+def _schema_type(kind: Any) -> Any:
+    origin = typing.get_origin(kind)
+    if origin is tuple:
+        return list[typing.get_args(kind)[0]]  # type: ignore[valid-type]
+    if origin in (typing.Union, types.UnionType):
+        members = [arg for arg in typing.get_args(kind) if arg is not type(None)]
+        if len(members) == 1:
+            return _schema_type(members[0]) | None
+        return Any
+    return kind
 
 
-@dataclass
-class RewardSchema:
-    """:class:`frl.envs.RewardConfig`; ``conf/reward/*.yaml`` hold the named presets."""
-
-    name: str = _REWARD.name
-    alpha: float = _REWARD.alpha
-    beta: float = _REWARD.beta
-    gamma: float = _REWARD.gamma
-    undisturbed_bonus: float = _REWARD.undisturbed_bonus
-    lambda_: float = _REWARD.lambda_
-    mu: float = _REWARD.mu
-    disturbance_radius: float = _REWARD.disturbance_radius
-    moving_speed: float = _REWARD.moving_speed
+def _schema_field(name: str, kind: Any, value: Any) -> tuple[str, Any, Any]:
+    if dataclasses.is_dataclass(value):
+        return (name, kind, field(default_factory=type(value)))
+    if isinstance(value, list | tuple):
+        items = list(value)
+        return (name, kind, field(default_factory=lambda: list(items)))
+    return (name, kind, field(default=value))
 
 
-@dataclass
-class FlowerSchema:
+@dataclass(frozen=True)
+class FlowerSettings:
     """``federation.backend=flower``: the runtime and the failure policy (docs/flower.md)."""
 
     runtime: str = "simulation"
     """simulation (one machine) | deployment (SuperLink + one SuperNode per vehicle)."""
-    superlink: Any = None
+    superlink: str | None = None
     """deployment: null starts a SuperLink and the SuperNodes on 127.0.0.1; "host:port"
     submits to a running SuperLink whose SuperNodes run python -m frl.flower.node."""
     accept_failures: bool = True
@@ -140,37 +120,36 @@ class FlowerSchema:
     """Longest wait for every vehicle's SuperNode to connect."""
 
 
-@dataclass
-class FederationSchema:
-    """The scheme (:class:`frl.federation.FederationPlan`) and how clients run."""
-
-    scheme: str = "fedavg"
-    """central | separate | fedavg."""
-    tasks: list[str] = field(default_factory=lambda: list(TASKS))
-    targets: str = "average"
-    """average: targets averaged too; resync: onlines averaged, then copied to targets."""
-    weighting: str = "equal"
-    """equal: Eq. (3); steps: weighted by the clients' steps in the round."""
-    initial_model: str | None = None
-    """shared: all clients start from one initial model; independent: each its own;
-    null: shared for fedavg, independent otherwise."""
-    backend: str = "processes"
-    """processes: one spawned worker process per client (one SUMO each); flower: Flower."""
-    flower: FlowerSchema = field(default_factory=FlowerSchema)
-    worker_timeout_s: float = 3600.0
-    """Longest one worker call (a round of local training) may take before the run stops."""
-    threads_per_worker: int = 0
-    """Torch threads per worker; 0: the available cores split evenly over the workers."""
+EnvSchema = schema_of(EnvConfig, "EnvSchema", exclude=("task",))
+"""``task`` is left out: the scheme decides it."""
+AgentSchema = schema_of(DDPGConfig, "AgentSchema", leading=(("name", str, "ddpg"),))
+"""``name``: the algorithm (frl implements ``ddpg``)."""
+RewardSchema = schema_of(RewardConfig, "RewardSchema")
+FlowerSchema = schema_of(FlowerSettings, "FlowerSchema")
+FederationSchema = schema_of(
+    FederationPlan,
+    "FederationSchema",
+    exclude=("total_steps", "interval"),  # root keys: interval=2000
+    trailing=(
+        ("backend", str, "processes"),
+        # processes: one spawned worker process per client (one SUMO each); flower: Flower.
+        ("flower", FlowerSchema, FlowerSchema()),
+        ("worker_timeout_s", float, 3600.0),
+        # Longest one worker call (a round of local training) may take before the run stops.
+        ("threads_per_worker", int, 0),
+        # Torch threads per worker; 0: the available cores split evenly over the workers.
+    ),
+)
 
 
 @dataclass
 class TrainSchema:
-    """Root of ``conf/config.yaml``. Budget and cadence are root keys: ``interval=2000``."""
+    """Root of ``frl/conf/config.yaml``. Budget and cadence are root keys: ``interval=2000``."""
 
     seed: int = 0
-    total_steps: int = 10_000
+    total_steps: int = FederationPlan.total_steps
     """Environment steps per agent (the paper's budget)."""
-    interval: int = 2_000
+    interval: int = FederationPlan.interval
     """Environment steps per client between aggregations (FedAvg) or checkpoints (all)."""
     eval_episodes: int = 100
     """Test episodes per task after training (Section IV.B); 0 skips evaluation. Tests
@@ -185,10 +164,10 @@ class TrainSchema:
     device: str = "cpu"
     run_dir: Any = None
     """Where the run writes; null: Hydra's output directory."""
-    env: EnvSchema = field(default_factory=EnvSchema)
-    agent: AgentSchema = field(default_factory=AgentSchema)
-    federation: FederationSchema = field(default_factory=FederationSchema)
-    reward: RewardSchema = field(default_factory=RewardSchema)
+    env: EnvSchema = field(default_factory=EnvSchema)  # type: ignore[valid-type]
+    agent: AgentSchema = field(default_factory=AgentSchema)  # type: ignore[valid-type]
+    federation: FederationSchema = field(default_factory=FederationSchema)  # type: ignore[valid-type]
+    reward: RewardSchema = field(default_factory=RewardSchema)  # type: ignore[valid-type]
 
 
 def register_configs() -> None:
@@ -206,17 +185,6 @@ def register_configs() -> None:
 
 
 # ------------------------------------------------------------------- validation
-@dataclass(frozen=True)
-class FlowerSettings:
-    """The validated ``federation.flower`` keys."""
-
-    runtime: str = "simulation"
-    superlink: str | None = None
-    accept_failures: bool = True
-    min_clients: int = 2
-    connect_timeout_s: float = 300.0
-
-
 @dataclass(frozen=True)
 class TrainSettings:
     """A validated configuration, as typed library objects."""
@@ -238,68 +206,83 @@ class TrainSettings:
         """The test environment of ``task``: the training traffic (Section IV.B)."""
         return dataclasses.replace(self.env, task=task)
 
+    def client_specs(self) -> list[ClientSpec]:
+        """One :class:`ClientSpec` per client of the scheme, seeded from the run seed."""
+        tasks = self.plan.client_tasks
+        init_seed = initial_model_seed(self.seed) if self.plan.shares_initial_model else None
+        return [
+            ClientSpec(
+                index=index,
+                task=task,
+                env=self.env,
+                reward=self.reward,
+                agent=self.agent,
+                agent_seed=agent_seed,
+                env_seed=env_seed,
+                device=self.device,
+                init_seed=init_seed,
+            )
+            for index, (task, (agent_seed, env_seed)) in enumerate(
+                zip(tasks, client_seeds(self.seed, len(tasks)), strict=True)
+            )
+        ]
+
 
 def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
-    """Check ``cfg`` and build the library configs; :class:`ConfigError` names the problem."""
-    data = _to_container(cfg)
-    unknown = sorted(set(data) - {f.name for f in dataclasses.fields(TrainSchema)})
-    if unknown:
-        raise ConfigError(f"unknown config key {unknown[0]!r}")
-    federation = data.get("federation", {})
-    reward = dict(data.get("reward", {}))
-    agent = dict(data.get("agent", {}))
-    env = dict(data.get("env", {}))
+    """Check ``cfg`` and build the library configs; :class:`ConfigError` names the problem.
 
-    if federation.get("backend", "processes") not in BACKENDS:
+    Keys ``cfg`` leaves out take the schema's defaults.
+    """
+    data = _complete(cfg)
+    federation = data["federation"]
+    reward = dict(data["reward"])
+    agent = dict(data["agent"])
+
+    if federation["backend"] not in FEDERATION_BACKENDS:
         raise ConfigError(
-            f"unknown federation.backend {federation.get('backend')!r}; "
-            f"choose one of {', '.join(BACKENDS)}"
+            f"unknown federation.backend {federation['backend']!r}; "
+            f"choose one of {', '.join(FEDERATION_BACKENDS)}"
         )
-    if reward.get("name", "paper") not in REWARD_NAMES:
+    if reward["name"] not in REWARD_NAMES:
         raise ConfigError(
-            f"unknown reward {reward.get('name')!r}; choose one of {', '.join(REWARD_NAMES)}"
+            f"unknown reward {reward['name']!r}; choose one of {', '.join(REWARD_NAMES)}"
         )
-    if agent.pop("name", "ddpg") != "ddpg":
+    if agent.pop("name") != "ddpg":
         raise ConfigError("unknown agent; frl implements agent=ddpg only")
-    for key in ("eval_episodes",):
-        value = data.get(key, 0)
-        if not isinstance(value, int) or isinstance(value, bool) or value < 0:
-            raise ConfigError(f"{key} must be a non-negative integer, got {value!r}")
-    yardsticks = tuple(data.get("yardsticks", ()))
+    if data["eval_episodes"] < 0:
+        raise ConfigError(
+            f"eval_episodes must be a non-negative integer, got {data['eval_episodes']!r}"
+        )
+    yardsticks = tuple(data["yardsticks"])
     unknown_yardsticks = [name for name in yardsticks if name not in YARDSTICKS]
     if unknown_yardsticks:
         raise ConfigError(
             f"unknown yardstick {unknown_yardsticks[0]!r}; choose from {', '.join(YARDSTICKS)}"
         )
     flower = _flower_settings(federation)
-    timeout = federation.get("worker_timeout_s", 3600.0)
+    timeout = federation["worker_timeout_s"]
     if timeout is not None and not timeout > 0:
         raise ConfigError(f"federation.worker_timeout_s must be positive, got {timeout!r}")
-    threads = federation.get("threads_per_worker", 0)
-    if not isinstance(threads, int) or threads < 0:
+    threads = federation["threads_per_worker"]
+    if threads < 0:
         raise ConfigError(f"federation.threads_per_worker must be >= 0, got {threads!r}")
     try:
         plan = FederationPlan(
-            scheme=federation.get("scheme", "fedavg"),
-            tasks=tuple(federation.get("tasks", TASKS)),
-            total_steps=data.get("total_steps", 10_000),
-            interval=data.get("interval", 2_000),
-            targets=federation.get("targets", "average"),
-            weighting=federation.get("weighting", "equal"),
-            initial_model=federation.get("initial_model"),
+            scheme=federation["scheme"],
+            tasks=tuple(federation["tasks"]),
+            total_steps=data["total_steps"],
+            interval=data["interval"],
+            targets=federation["targets"],
+            weighting=federation["weighting"],
+            initial_model=federation["initial_model"],
         )
-        scenario = ScenarioConfig(**env.pop("scenario", {}))
-        grid_fields = dict(env.pop("grid", {}))
-        for name in ("lateral_range", "longitudinal_range"):
-            if name in grid_fields:
-                grid_fields[name] = tuple(grid_fields[name])
-        env_config = EnvConfig(scenario=scenario, grid=GridConfig(**grid_fields), **env)
+        env_config = EnvConfig.from_dict(data["env"])
         reward_config = RewardConfig(**reward)
         agent_config = DDPGConfig.from_dict(agent)
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
     if (
-        federation.get("backend") == "flower"
+        federation["backend"] == "flower"
         and plan.aggregates
         and flower.min_clients > len(plan.client_tasks)
     ):
@@ -312,11 +295,11 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         env=env_config,
         reward=reward_config,
         agent=agent_config,
-        seed=int(data.get("seed", 0)),
-        eval_episodes=int(data.get("eval_episodes", 100)),
+        seed=data["seed"],
+        eval_episodes=data["eval_episodes"],
         yardsticks=yardsticks,
-        device=str(data.get("device", "cpu")),
-        backend=federation.get("backend", "processes"),
+        device=data["device"],
+        backend=federation["backend"],
         worker_timeout_s=timeout,
         threads_per_worker=threads or None,
         flower=flower,
@@ -325,33 +308,28 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
 
 def _flower_settings(federation: dict[str, Any]) -> FlowerSettings:
     """Check ``federation.flower``; with ``backend=flower``, also that Flower is installed."""
-    keys = dict(federation.get("flower") or {})
-    runtime = keys.get("runtime", "simulation")
+    keys = dict(federation["flower"])
+    runtime = keys["runtime"]
     if runtime not in FLOWER_RUNTIMES:
         raise ConfigError(
             f"unknown federation.flower.runtime {runtime!r}; choose one of "
             f"{', '.join(FLOWER_RUNTIMES)}"
         )
-    superlink = keys.get("superlink")
-    if superlink is not None and (not isinstance(superlink, str) or ":" not in superlink):
+    superlink = keys["superlink"]
+    if superlink is not None and ":" not in superlink:
         raise ConfigError(f"federation.flower.superlink must be host:port, got {superlink!r}")
-    min_clients = keys.get("min_clients", 2)
-    if not isinstance(min_clients, int) or isinstance(min_clients, bool) or min_clients < 1:
-        raise ConfigError(f"federation.flower.min_clients must be >= 1, got {min_clients!r}")
-    connect_timeout = keys.get("connect_timeout_s", 300.0)
-    if not connect_timeout > 0:
+    if keys["min_clients"] < 1:
         raise ConfigError(
-            f"federation.flower.connect_timeout_s must be positive, got {connect_timeout!r}"
+            f"federation.flower.min_clients must be >= 1, got {keys['min_clients']!r}"
         )
-    if federation.get("backend") == "flower":
+    if not keys["connect_timeout_s"] > 0:
+        raise ConfigError(
+            "federation.flower.connect_timeout_s must be positive, got "
+            f"{keys['connect_timeout_s']!r}"
+        )
+    if federation["backend"] == "flower":
         _require_flower(runtime)
-    return FlowerSettings(
-        runtime=runtime,
-        superlink=superlink,
-        accept_failures=bool(keys.get("accept_failures", True)),
-        min_clients=min_clients,
-        connect_timeout_s=float(connect_timeout),
-    )
+    return FlowerSettings(**keys)
 
 
 def _require_flower(runtime: str) -> None:
@@ -371,12 +349,27 @@ def _require_flower(runtime: str) -> None:
         )
 
 
-def _to_container(cfg: DictConfig | TrainSchema | dict[str, Any]) -> dict[str, Any]:
-    if isinstance(cfg, DictConfig):
-        return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
-    if dataclasses.is_dataclass(cfg):
-        return OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)  # type: ignore[return-value]
-    return dict(cfg)
+def _complete(cfg: DictConfig | TrainSchema | dict[str, Any]) -> dict[str, Any]:
+    """``cfg`` merged into the schema: every key present, every value of its type."""
+    try:
+        if isinstance(cfg, DictConfig):
+            given: Any = cfg
+        elif dataclasses.is_dataclass(cfg):
+            given = OmegaConf.structured(cfg)
+        else:
+            given = OmegaConf.create(dict(cfg))
+        merged = OmegaConf.merge(OmegaConf.structured(TrainSchema), given)
+        return OmegaConf.to_container(merged, resolve=True)  # type: ignore[return-value]
+    except OmegaConfBaseException as error:
+        raise ConfigError(_one_line(error)) from None
+
+
+def _one_line(error: Exception) -> str:
+    """OmegaConf's message without its ``full_key: ...`` context lines."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    key = next((line for line in lines if line.startswith("full_key:")), None)
+    message = lines[0] if lines else type(error).__name__
+    return f"{message} ({key})" if key and key != "full_key:" else message
 
 
 def load_run_config(run_dir: str | Path) -> DictConfig:
@@ -384,14 +377,15 @@ def load_run_config(run_dir: str | Path) -> DictConfig:
 
     Configs saved before a key existed are read as they ran (:func:`migrate_saved_config`).
     """
-    path = Path(run_dir) / "config.yaml"
-    if not path.exists():
-        raise ConfigError(f"{run_dir} is not an frl run directory: it has no config.yaml")
-    saved = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
-    if not isinstance(saved, dict):
-        raise ConfigError(f"{path} is not an frl run config")
-    schema = OmegaConf.structured(TrainSchema)
-    return OmegaConf.merge(schema, migrate_saved_config(saved))  # type: ignore[return-value]
+    try:
+        saved = read_saved_config(Path(run_dir))
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(TrainSchema), migrate_saved_config(saved))
+    except OmegaConfBaseException as error:
+        raise ConfigError(f"{run_dir}/config.yaml: {_one_line(error)}") from None
+    return merged  # type: ignore[return-value]
 
 
 def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:

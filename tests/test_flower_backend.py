@@ -17,7 +17,7 @@ from train_helpers import compose_config
 pytest.importorskip("flwr")
 
 from frl.federation import ClientFailure
-from frl.flower.runtime import TOKEN_VAR
+from frl.flower.launch import TOKEN_VAR
 from frl.train import train
 from frl.train_config import ConfigError, validate
 
@@ -123,7 +123,7 @@ def test_a_vehicle_killed_mid_round_is_dropped_and_the_run_goes_on(tmp_path):
 def test_the_failure_policy_stops_or_drops_as_configured(tmp_path):
     from train_helpers import tiny_spec
 
-    from frl.flower.pool import FlowerClientPool
+    from frl.flower.grid_pool import FlowerClientPool
 
     specs = [tiny_spec(i, task) for i, task in enumerate(["left", "straight", "right"])]
 

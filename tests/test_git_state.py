@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from frl.train import git_state
+from frl.provenance import git_state
 
 pytestmark = pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
 
@@ -26,7 +26,7 @@ def _git(repo: Path, *args: str) -> str:
 @pytest.fixture()
 def checkout(tmp_path: Path) -> Path:
     repo = tmp_path / "checkout"
-    for name in ("frl/train.py", "conf/config.yaml", "docs/results.md", "pyproject.toml"):
+    for name in ("frl/train.py", "frl/conf/config.yaml", "docs/results.md", "pyproject.toml"):
         (repo / name).parent.mkdir(parents=True, exist_ok=True)
         (repo / name).write_text("x\n")
     _git(repo, "init", "-q")
@@ -46,7 +46,7 @@ def test_results_written_into_docs_do_not_make_a_run_dirty(checkout: Path) -> No
 
 
 @pytest.mark.parametrize(
-    "change", ["frl/train.py", "conf/config.yaml", "pyproject.toml", "frl/new_module.py"]
+    "change", ["frl/train.py", "frl/conf/config.yaml", "pyproject.toml", "frl/new_module.py"]
 )
 def test_changed_or_new_code_makes_a_run_dirty(checkout: Path, change: str) -> None:
     (checkout / change).write_text("changed\n")

@@ -9,7 +9,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf.errors import ValidationError
 from train_helpers import CONF_DIR, compose_config
 
-from frl.train import build_client_specs, train
+from frl.train import train
 from frl.train_config import ConfigError, validate
 
 
@@ -65,7 +65,7 @@ def test_the_waiting_study_is_the_learning_study_without_the_undisturbed_bonus()
     ],
 )
 def test_which_clients_share_one_initial_model(overrides, shared):
-    specs = build_client_specs(validate(compose_config(None, overrides)))
+    specs = validate(compose_config(None, overrides)).client_specs()
     init_seeds = {spec.init_seed for spec in specs}
     agent_seeds = {spec.agent_seed for spec in specs}
     assert len(agent_seeds) == len(specs)  # every client keeps its own streams
@@ -77,8 +77,7 @@ def test_which_clients_share_one_initial_model(overrides, shared):
 
 def test_the_shared_initial_model_depends_on_the_run_seed():
     seeds = [
-        build_client_specs(validate(compose_config(None, [f"seed={s}"])))[0].init_seed
-        for s in (0, 0, 1)
+        validate(compose_config(None, [f"seed={s}"])).client_specs()[0].init_seed for s in (0, 0, 1)
     ]
     assert seeds[0] == seeds[1] != seeds[2]
 

@@ -11,7 +11,7 @@ from frl.envs import EnvConfig, RewardConfig
 from frl.federation import ClientSpec
 from frl.train_config import register_configs
 
-CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
+CONF_DIR = str(Path(__file__).resolve().parents[1] / "frl" / "conf")
 
 TINY_OVERRIDES = [
     "total_steps=240",

@@ -8,7 +8,7 @@ Hydra ``DictConfig``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 TASKS: tuple[str, ...] = ("left", "straight", "right")
@@ -17,7 +17,7 @@ TASKS: tuple[str, ...] = ("left", "straight", "right")
 TASK_CHOICES: tuple[str, ...] = (*TASKS, "random")
 """Valid values of ``EnvConfig.task``; ``random`` draws one of TASKS per episode."""
 
-BACKENDS: tuple[str, ...] = ("libsumo", "traci")
+SUMO_BACKENDS: tuple[str, ...] = ("libsumo", "traci")
 ARRIVAL_PROCESSES: tuple[str, ...] = ("bernoulli", "poisson", "periodic")
 REWARD_NAMES: tuple[str, ...] = ("paper", "reference")
 
@@ -297,6 +297,25 @@ class EnvConfig:
             "warmup_steps must be a non-negative integer",
         )
         _require(
-            self.backend in BACKENDS,
-            f"unknown backend {self.backend!r}; choose one of {BACKENDS}",
+            self.backend in SUMO_BACKENDS,
+            f"unknown backend {self.backend!r}; choose one of {SUMO_BACKENDS}",
         )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (JSON and YAML friendly); :meth:`from_dict` reads it back."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EnvConfig:
+        """An :class:`EnvConfig` from nested plain data (a saved config, a JSON spec).
+
+        ``scenario`` and ``grid`` are mappings of their fields; ranges may be lists.
+        Unknown keys raise ``TypeError``, bad values ``ValueError``.
+        """
+        data = dict(data)
+        scenario = ScenarioConfig(**dict(data.pop("scenario", {})))
+        grid_fields = dict(data.pop("grid", {}))
+        for name in ("lateral_range", "longitudinal_range"):
+            if name in grid_fields:
+                grid_fields[name] = tuple(grid_fields[name])
+        return cls(scenario=scenario, grid=GridConfig(**grid_fields), **data)

@@ -10,20 +10,20 @@ The Flower backend lives beside this package, in :mod:`frl.flower`.
 """
 
 from frl.federation.client import ClientSpec, LocalUpdate, VehicleClient
-from frl.federation.coordinator import Coordinator, RunState
+from frl.federation.client_pool import ClientPool, ProcessClientPool
+from frl.federation.coordinator import Coordinator
 from frl.federation.fedavg import TARGET_MODES, WEIGHTINGS, fedavg, state_nbytes
 from frl.federation.plan import (
-    BACKENDS,
+    FEDERATION_BACKENDS,
     SCHEMES,
     FederationPlan,
     client_seeds,
     evaluation_seeds,
 )
-from frl.federation.pool import ClientPool, ProcessClientPool
 from frl.federation.workers import ClientFailure, WorkerPool, threads_per_worker
 
 __all__ = [
-    "BACKENDS",
+    "FEDERATION_BACKENDS",
     "SCHEMES",
     "TARGET_MODES",
     "WEIGHTINGS",
@@ -34,7 +34,6 @@ __all__ = [
     "FederationPlan",
     "LocalUpdate",
     "ProcessClientPool",
-    "RunState",
     "VehicleClient",
     "WorkerPool",
     "client_seeds",

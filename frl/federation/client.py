@@ -1,11 +1,12 @@
 """A vehicle: its environment, its DDPG agent and its local training loop, with no transport.
 
 :class:`VehicleClient` is what every transport wraps: the worker processes of
-:mod:`frl.federation.workers` today, a Flower ``ClientApp`` later. Whatever leaves a
-vehicle goes through :meth:`VehicleClient.train` (a :class:`LocalUpdate`) or
+:mod:`frl.federation.workers` and the Flower vehicle process of
+:mod:`frl.flower.vehicle`. Whatever leaves a vehicle goes through
+:meth:`VehicleClient.train` (a :class:`LocalUpdate`) or
 :meth:`VehicleClient.get_parameters`: model parameters and scalar metrics, never
 observations, replay data, optimizer moments or noise state (the paper's privacy claim,
-Section I; tested in tests/test_federation_privacy.py).
+Section I; tested in tests/test_federation_client.py).
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ _SEED_HALF_RANGE = 2**30
 def training_sumo_seed(base_seed: int, restart: int) -> int:
     """SUMO seed of a client's ``restart``-th simulation start. Always even.
 
-    Evaluation seeds are always odd (:func:`frl.federation.seeds.evaluation_seeds`), so
+    Evaluation seeds are always odd (:func:`frl.federation.plan.evaluation_seeds`), so
     test traffic never replays a training simulation.
     """
     mixed = np.random.SeedSequence([int(base_seed), int(restart)]).generate_state(1, np.uint32)

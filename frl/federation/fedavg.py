@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 TARGET_MODES: tuple[str, ...] = ("average", "resync")
-"""How target networks follow aggregation: see :func:`frl.federation.scheme` docs."""
+"""How target networks follow aggregation: :attr:`frl.federation.FederationPlan.targets`."""
 
 WEIGHTINGS: tuple[str, ...] = ("equal", "steps")
 """Client weights of FedAvg: equal (Eq. (3)) or by environment steps in the round."""

@@ -17,7 +17,7 @@ task, averaged into one global model every ``interval`` steps."""
 INITIAL_MODELS: tuple[str, ...] = ("shared", "independent")
 """How the clients' networks start: from one initial global model, or each its own."""
 
-BACKENDS: tuple[str, ...] = ("processes", "flower")
+FEDERATION_BACKENDS: tuple[str, ...] = ("processes", "flower")
 """How clients run: ``processes`` = one spawned worker process per client (libsumo
 allows one SUMO per process); ``flower`` = the vehicles as Flower ClientApps and the
 roadside unit as a ServerApp (``pip install frl[flower]``; :mod:`frl.flower`)."""

@@ -29,6 +29,7 @@ import multiprocessing as mp
 import os
 import pickle
 import signal
+import subprocess
 import sys
 import time
 import traceback
@@ -75,6 +76,53 @@ def threads_per_worker(num_workers: int, cores: int | None = None) -> int:
     """Torch threads per worker so that the workers together use every core once."""
     cores = available_cores() if cores is None else cores
     return max(1, cores // max(1, num_workers))
+
+
+Stoppable = mp.process.BaseProcess | subprocess.Popen[Any]
+"""A spawned worker, or a command started with ``start_new_session=True``."""
+
+
+def stop_processes(processes: Sequence[Stoppable], grace_s: float = 10.0) -> None:
+    """SIGTERM every process, then SIGKILL whatever still runs after ``grace_s``.
+
+    The one way frl stops what it started: worker and vehicle processes (spawned with
+    ``multiprocessing``) get the signal themselves; commands (Flower's SuperLink and
+    SuperNodes, started in their own session) get it for their whole process group, so
+    their children go too.
+    """
+
+    def signal_process(process: Stoppable, sig: signal.Signals) -> None:
+        with contextlib.suppress(ProcessLookupError, PermissionError, ValueError):
+            if isinstance(process, subprocess.Popen):
+                if process.poll() is None:
+                    os.killpg(process.pid, sig)
+            elif process.is_alive() and process.pid is not None:
+                os.kill(process.pid, sig)
+
+    def wait(process: Stoppable, timeout: float) -> None:
+        if isinstance(process, subprocess.Popen):
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                process.wait(timeout=timeout)
+        else:
+            with contextlib.suppress(ValueError):  # closed already
+                process.join(timeout=timeout)
+
+    def alive(process: Stoppable) -> bool:
+        if isinstance(process, subprocess.Popen):
+            return process.poll() is None
+        with contextlib.suppress(ValueError):
+            return process.is_alive()
+        return False
+
+    for process in processes:
+        signal_process(process, signal.SIGTERM)
+    deadline = time.monotonic() + grace_s
+    for process in processes:
+        wait(process, max(0.1, deadline - time.monotonic()))
+    for process in processes:
+        if alive(process):
+            signal_process(process, signal.SIGKILL)
+            wait(process, 5.0)
 
 
 def _send(conn: Connection, message: Any) -> None:
@@ -336,14 +384,7 @@ class WorkerPool:
             deadline = time.monotonic() + grace_s
             for process in self._processes:
                 process.join(timeout=max(0.0, deadline - time.monotonic()))
-        for process in self._processes:
-            if process.is_alive():
-                process.terminate()
-        for process in self._processes:
-            process.join(timeout=3.0)
-            if process.is_alive():
-                process.kill()
-                process.join(timeout=3.0)
+        stop_processes([p for p in self._processes if p.is_alive()], grace_s=3.0)
         for conn in self._connections:
             conn.close()
         for process in self._processes:

@@ -3,7 +3,7 @@
 Two encodings of the same content:
 
 - Flower messages carry arrays (numpy, serialised by Flower with ``allow_pickle=False``)
-  and JSON text in a ``ConfigRecord``; :mod:`frl.flower.apps` builds them
+  and JSON text in a ``ConfigRecord``; :mod:`frl.flower.messages` builds them
   from the plain parts below.
 - The local channel between a ClientApp and its vehicle process carries the same parts
   as frames (:mod:`frl.flower.frames`).
@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from frl.agents import DDPGConfig
-from frl.envs import EnvConfig, GridConfig, RewardConfig, ScenarioConfig
+from frl.envs import EnvConfig, RewardConfig
 from frl.episodes import EpisodeRecord
 from frl.federation.client import ClientSpec, LocalUpdate
 from frl.flower.frames import Arrays, prefixed, unprefixed
@@ -45,14 +45,8 @@ def spec_to_json(spec: ClientSpec) -> str:
 def spec_from_json(text: str) -> ClientSpec:
     """Inverse of :func:`spec_to_json`; unknown or missing fields raise ``TypeError``."""
     data = json.loads(text)
-    env = dict(data.pop("env"))
-    grid = dict(env.pop("grid"))
-    for name in ("lateral_range", "longitudinal_range"):
-        grid[name] = tuple(grid[name])
     return ClientSpec(
-        env=EnvConfig(
-            scenario=ScenarioConfig(**env.pop("scenario")), grid=GridConfig(**grid), **env
-        ),
+        env=EnvConfig.from_dict(data.pop("env")),
         reward=RewardConfig(**data.pop("reward")),
         agent=DDPGConfig.from_dict(data.pop("agent")),
         **data,

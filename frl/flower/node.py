@@ -20,11 +20,11 @@ import socket
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from frl.federation.workers import stop_processes
 from frl.flower.vehicle import VehicleService
 
 
@@ -49,23 +49,6 @@ def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return int(probe.getsockname()[1])
-
-
-def stop_processes(processes: Sequence[subprocess.Popen[Any]], grace_s: float = 10.0) -> None:
-    """SIGTERM each process's session (it was started with ``start_new_session``), then
-    SIGKILL what is left after ``grace_s``."""
-    for process in processes:
-        if process.poll() is None:
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(process.pid, signal.SIGTERM)
-    deadline = time.monotonic() + grace_s
-    for process in processes:
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            process.wait(timeout=max(0.1, deadline - time.monotonic()))
-        if process.poll() is None:
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(process.pid, signal.SIGKILL)
-            process.wait(timeout=5.0)
 
 
 class VehicleNode:
@@ -120,7 +103,7 @@ class VehicleNode:
         self.close()
 
     def start(self) -> None:
-        from frl.flower.apps import AUTHKEY_KEY, PARTITION_KEY, SOCKET_KEY
+        from frl.flower.messages import AUTHKEY_KEY, PARTITION_KEY, SOCKET_KEY
 
         self.service.start()
         endpoint = self.service.endpoint

@@ -294,12 +294,9 @@ class VehicleService:
         """Stop the process (SIGTERM, then SIGKILL); safe to call twice."""
         process, self._process = self._process, None
         if process is not None:
-            if process.is_alive():
-                process.terminate()
-                process.join(timeout=10.0)
-            if process.is_alive():
-                process.kill()
-                process.join(timeout=5.0)
+            from frl.federation.workers import stop_processes
+
+            stop_processes([process])
         with contextlib.suppress(OSError):
             os.unlink(self.endpoint.address)
         if self._own_dir:

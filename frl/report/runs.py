@@ -25,10 +25,15 @@ from typing import Any
 import numpy as np
 import yaml
 
-from frl.federation.coordinator import STATE_FILE
-from frl.federation.coordinator import STEP_REWARDS_FILE as STEP_REWARDS_NPY
 from frl.fileio import read_json, write_bytes_atomic, write_json_atomic
-from frl.train import CONFIG_FILE, RESULTS_FILE, TB_DIR, VERSIONS_FILE
+from frl.run_directory import (
+    CONFIG_FILE,
+    RESULTS_FILE,
+    STATE_FILE,
+    TB_DIR,
+    VERSIONS_FILE,
+)
+from frl.run_directory import STEP_REWARDS_FILE as STEP_REWARDS_NPY
 
 STEP_REWARDS_CSV = "step_rewards.csv"
 EPISODES_CSV = "episodes.csv"

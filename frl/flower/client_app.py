@@ -1,18 +1,7 @@
-"""The vehicle as a Flower ClientApp, and the roadside unit as a Flower ServerApp.
+"""The vehicle as a Flower ClientApp: a stateless relay to its vehicle process.
 
-A message from the roadside unit holds a ``ConfigRecord`` ``"frl"`` (the request as
-JSON text) and, when the global model goes down, an ``ArrayRecord`` ``"parameters"``.
-A reply holds ``"frl"`` (the answer as JSON text: client name, episode records, step
-counts), ``"parameters"`` (the model upload, if any), ``"series"`` (per-step rewards and
-losses, float32) and a ``MetricRecord`` ``"metrics"`` with ``num-examples`` (the steps of
-the round, Flower's FedAvg weight key). Arrays cross the wire as numpy ``.npy`` bytes
-written with ``allow_pickle=False``; nothing is pickled.
-
-Message types: ``train`` (local training), ``query.setup``, ``query.sync`` (global model
-and/or checkpoint), ``query.load``, ``query.model``.
-
-The ClientApp holds no state: it relays every message to its vehicle process
-(:mod:`frl.flower.vehicle`), found through the node config
+The ClientApp holds no state: it relays every message (:mod:`frl.flower.messages`) to
+its vehicle process (:mod:`frl.flower.vehicle`), found through the node config
 (``frl-vehicle-socket``, ``frl-vehicle-key``) or, in simulation, through a mapping
 given to :func:`make_client_app`.
 """
@@ -21,15 +10,25 @@ from __future__ import annotations
 
 import json
 import traceback
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable
 
-import numpy as np
-from flwr.app import Array, ArrayRecord, ConfigRecord, Context, Message, MetricRecord, RecordDict
+from flwr.app import ConfigRecord, Context, Message, MetricRecord, RecordDict
 from flwr.clientapp import ClientApp
-from flwr.serverapp import Grid, ServerApp
 
 from frl.flower.frames import Arrays, prefixed, unprefixed
+from frl.flower.messages import (
+    AUTHKEY_KEY,
+    METRICS,
+    PARAMETERS,
+    PARTITION_KEY,
+    QUERY_OPS,
+    REQUEST,
+    SERIES,
+    SOCKET_KEY,
+    arrays_to_record,
+    read_header,
+    record_to_arrays,
+)
 from frl.flower.vehicle import (
     PARAMETERS_PREFIX,
     SERIES_PREFIX,
@@ -38,47 +37,9 @@ from frl.flower.vehicle import (
     call_vehicle,
 )
 
-REQUEST = "frl"
-PARAMETERS = "parameters"
-SERIES = "series"
-METRICS = "metrics"
-QUERY_OPS: tuple[str, ...] = ("setup", "sync", "load", "model")
-
-SOCKET_KEY = "frl-vehicle-socket"
-AUTHKEY_KEY = "frl-vehicle-key"
-PARTITION_KEY = "partition-id"
-RUN_DIR_KEY = "run-dir"
-
 EndpointLookup = Callable[[Context], VehicleEndpoint]
 
 
-def message_type(op: str) -> str:
-    return "train" if op == "train" else f"query.{op}"
-
-
-# ------------------------------------------------------------------ records
-def arrays_to_record(arrays: Mapping[str, np.ndarray]) -> ArrayRecord:
-    return ArrayRecord.from_array_dict(
-        {key: Array(np.ascontiguousarray(value)) for key, value in arrays.items()}
-    )
-
-
-def record_to_arrays(record: ArrayRecord) -> Arrays:
-    return {key: array.numpy() for key, array in record.items()}
-
-
-def request_content(header: Mapping[str, Any], parameters: Arrays | None = None) -> RecordDict:
-    content = RecordDict({REQUEST: ConfigRecord({"header": json.dumps(dict(header))})})
-    if parameters:
-        content[PARAMETERS] = arrays_to_record(parameters)
-    return content
-
-
-def read_header(content: RecordDict) -> dict[str, Any]:
-    return json.loads(str(content.config_records[REQUEST]["header"]))
-
-
-# ------------------------------------------------------------------ the vehicle
 def node_endpoint(context: Context) -> VehicleEndpoint:
     """The vehicle process named in the node config (deployment runtime)."""
     config = context.node_config
@@ -144,16 +105,3 @@ def make_client_app(endpoint_for: EndpointLookup = node_endpoint) -> ClientApp:
 
 client_app = make_client_app()
 """The ClientApp of a SuperNode started by ``python -m frl.flower.node``."""
-
-
-# ------------------------------------------------------------------ the roadside unit
-server_app = ServerApp()
-"""The ServerApp of the deployment runtime: trains the run whose directory the run
-config names (``run-dir``, written by ``python -m frl.train``)."""
-
-
-@server_app.main()
-def _deployment_main(grid: Grid, context: Context) -> None:
-    from frl.flower.runtime import serve_run_dir
-
-    serve_run_dir(grid, str(context.run_config[RUN_DIR_KEY]))

@@ -28,9 +28,14 @@ from flwr.serverapp import Grid
 from torch import Tensor
 
 from frl.federation.client import ClientSpec, LocalUpdate
-from frl.federation.pool import ProgressHook
+from frl.federation.client_pool import ProgressHook
 from frl.federation.workers import ClientFailure
-from frl.flower.apps import (
+from frl.flower.codec import (
+    spec_to_json,
+    tensors_to_arrays,
+    update_from_parts,
+)
+from frl.flower.messages import (
     METRICS,
     PARAMETERS,
     PARTITION_KEY,
@@ -39,11 +44,6 @@ from frl.flower.apps import (
     read_header,
     record_to_arrays,
     request_content,
-)
-from frl.flower.codec import (
-    spec_to_json,
-    tensors_to_arrays,
-    update_from_parts,
 )
 
 log = logging.getLogger("frl.flower")

@@ -1,4 +1,4 @@
-"""Process-wide CPU settings for training speed, applied only when asked (never at import)."""
+"""Process-wide CPU settings that benchmarks/agent_speed.py applies before timing the agent."""
 
 from __future__ import annotations
 

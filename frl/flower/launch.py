@@ -7,12 +7,12 @@
   127.0.0.1 (:class:`LocalFederation`) and stopped afterwards; otherwise the run is
   submitted to that SuperLink, whose SuperNodes were started on the vehicles' hosts
   with ``python -m frl.flower.node``. Either way ``flwr run`` submits the
-  app in ``frl/flower/app/``, and its ServerApp (:func:`serve_run_dir`)
+  app in ``frl/flower/app/``, and its ServerApp (:func:`frl.flower.server_app.serve_run_dir`)
   trains the run whose directory ``python -m frl.train`` prepared.
 
 Both end in the same :class:`~frl.federation.coordinator.Coordinator` as the
 in-process backend, so TensorBoard tags, checkpoints, ``state.json`` and (back in
-:func:`frl.train.train`) ``results.json`` and the evaluation are the same.
+:func:`frl.training.train`) ``results.json`` and the evaluation are the same.
 """
 
 from __future__ import annotations
@@ -29,28 +29,24 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from frl import run_directory as rundir
 from frl.federation.client import ClientSpec
-from frl.federation.coordinator import STATE_FILE, Coordinator, RoundHook, RunState
-from frl.federation.workers import ClientFailure
-from frl.fileio import read_json, write_json_atomic
+from frl.federation.workers import ClientFailure, stop_processes, threads_per_worker
+from frl.fileio import read_json
 from frl.flower.node import (
     VehicleNode,
     flower_env,
     flower_executable,
     free_port,
-    stop_processes,
 )
 from frl.flower.vehicle import VehicleEndpoint, VehicleService
+from frl.run_directory import RoundHook, RunState
 from frl.train_config import TrainSettings
 
 log = logging.getLogger("frl.flower")
 
 APP_DIR = Path(__file__).resolve().parent / "app"
 """The Flower app that ``flwr run`` submits (its ServerApp and ClientApp live in frl)."""
-FAILURE_FILE = "flower_failure.json"
-"""Why a deployment run stopped, written by its ServerApp for ``frl.train`` to raise."""
-LOG_DIR = "flower"
-"""Logs of the SuperLink, the SuperNodes and ``flwr run`` under the run directory."""
 POLL_ENV = {"FLWR_SUPEREXEC_TASK_POLL_INTERVAL": "0.1"}
 """Flower's process launchers look for new work every second by default; on a local
 federation that second is added to every message, so look more often."""
@@ -72,40 +68,6 @@ def train_rounds(
     return _deploy(settings, run_dir)
 
 
-def run_roadside_unit(
-    grid: Any,
-    settings: TrainSettings,
-    specs: Sequence[ClientSpec],
-    run_dir: Path,
-    state: RunState,
-    progress: bool = False,
-    on_round_end: RoundHook | None = None,
-) -> RunState:
-    """The ServerApp's work: connect the vehicles, then the frl rounds over the grid."""
-    from frl.federation.tensorboard import TrainingLogger, resume_purge_step
-    from frl.flower.pool import FlowerClientPool
-    from frl.train import TB_DIR
-
-    flower = settings.flower
-    pool = FlowerClientPool(
-        grid,
-        specs,
-        run_dir,
-        run_key=f"{run_dir.resolve()}#{uuid.uuid4().hex[:8]}",
-        accept_failures=flower.accept_failures,
-        min_clients=flower.min_clients,
-        aggregates=settings.plan.aggregates,
-        timeout_s=settings.worker_timeout_s,
-        connect_timeout_s=flower.connect_timeout_s,
-        dropped=state.dropped_clients,
-    )
-    pool.connect()
-    purge_step = resume_purge_step(run_dir / TB_DIR, state.steps_per_client)
-    with TrainingLogger(run_dir / TB_DIR, purge_step=purge_step) as logger:
-        coordinator = Coordinator(settings.plan, pool, run_dir, logger, progress, on_round_end)
-        return coordinator.run(state)
-
-
 # ------------------------------------------------------------------ simulation
 def _simulate(
     settings: TrainSettings,
@@ -118,7 +80,9 @@ def _simulate(
     from flwr.serverapp import ServerApp
     from flwr.simulation import run_simulation
 
-    from frl.flower.apps import PARTITION_KEY, make_client_app
+    from frl.flower.client_app import make_client_app
+    from frl.flower.messages import PARTITION_KEY
+    from frl.flower.server_app import run_roadside_unit
 
     threads = settings.threads_per_worker or _default_threads(len(specs))
     outcome: dict[str, Any] = {}
@@ -169,50 +133,15 @@ class _SimulatedEndpoints:
 
 
 def _default_threads(num_clients: int) -> int:
-    from frl.federation.workers import threads_per_worker
-
     return threads_per_worker(num_clients)
 
 
 # ------------------------------------------------------------------ deployment
-def serve_run_dir(grid: Any, run_dir: str) -> None:
-    """The deployment ServerApp: train the run prepared in ``run_dir`` by ``frl.train``.
-
-    Whatever stops it is written to ``FAILURE_FILE`` for ``frl.train`` to raise.
-    """
-    from frl.train import build_client_specs
-    from frl.train_config import load_run_config, validate
-
-    directory = Path(run_dir)
-    # frl's own messages only: Flower forwards this process's log records to the
-    # SuperLink over HTTP, so a root handler at INFO would log its own requests.
-    handler = logging.StreamHandler()
-    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s"))
-    frl_log = logging.getLogger("frl")
-    frl_log.addHandler(handler)
-    frl_log.setLevel(logging.DEBUG if os.environ.get("FRL_FLOWER_DEBUG") else logging.INFO)
-    try:
-        settings = validate(load_run_config(directory))
-        state_path = directory / STATE_FILE
-        state = RunState.from_dict(read_json(state_path)) if state_path.exists() else RunState()
-        run_roadside_unit(grid, settings, build_client_specs(settings), directory, state)
-    except BaseException as error:
-        write_json_atomic(
-            directory / FAILURE_FILE,
-            {
-                "type": type(error).__name__,
-                "client": getattr(error, "client", None),
-                "message": str(error),
-            },
-        )
-        raise
-
-
 def _deploy(settings: TrainSettings, run_dir: Path) -> RunState:
     """Submit the run with ``flwr run`` and wait; a local federation if none is named."""
     flower = settings.flower
-    (run_dir / FAILURE_FILE).unlink(missing_ok=True)
-    logs = run_dir / LOG_DIR
+    (run_dir / rundir.FLOWER_FAILURE_FILE).unlink(missing_ok=True)
+    logs = run_dir / rundir.FLOWER_LOG_DIR
     logs.mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
         if flower.superlink is None:
@@ -229,12 +158,11 @@ def _deploy(settings: TrainSettings, run_dir: Path) -> RunState:
         else:
             address, env = flower.superlink, flower_env()
         _submit(address, run_dir, env, logs / "flwr_run.log")
-    state_path = run_dir / STATE_FILE
-    failure = run_dir / FAILURE_FILE
+    failure = run_dir / rundir.FLOWER_FAILURE_FILE
     if failure.exists():
         info = read_json(failure)
         raise ClientFailure(info.get("client") or "(roadside unit)", info["message"])
-    state = RunState.from_dict(read_json(state_path)) if state_path.exists() else None
+    state = rundir.read_state(run_dir)
     if state is None or not state.training_finished:
         raise RuntimeError(f"the Flower run ended before training finished; see {logs}/*.log")
     return state

@@ -1,0 +1,274 @@
+"""A training run from a composed config to its ``results.json``: :func:`train`.
+
+The run directory's layout, state and resume lookup belong to :mod:`frl.run_directory`,
+the versions recorded with a run to :mod:`frl.provenance`; ``python -m frl.train`` is the
+Hydra entry point over :func:`train`. docs/training.md describes the TensorBoard tags and
+the keys of ``results.json``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from frl import run_directory as rundir
+from frl.federation.client_pool import ProcessClientPool
+from frl.federation.coordinator import Coordinator
+from frl.federation.tensorboard import TrainingLogger, resume_purge_step
+from frl.fileio import read_json, write_json_atomic
+from frl.provenance import versions
+from frl.run_directory import RoundHook, RunDirectoryError, RunState
+from frl.train_config import ConfigError, TrainSettings, load_run_config, validate
+
+log = logging.getLogger("frl.train")
+
+FINAL_REWARD_FRACTION = 0.1
+"""``final_step_reward`` averages ``train/step_reward`` over this last share of the run."""
+_VOLATILE_KEYS = ("progress", "resume", "run_dir")
+"""Keys that may differ between a run and its resumption."""
+
+
+def train(
+    cfg: DictConfig | dict[str, Any], on_round_end: RoundHook | None = None
+) -> dict[str, Any]:
+    """Train, checkpoint, test and write ``results.json``; return the results.
+
+    Args:
+        cfg: a config composed from ``frl/conf`` (or any mapping of the schema's keys).
+            ``run_dir`` defaults to Hydra's output directory.
+        on_round_end: called with the :class:`RunState` after each committed round.
+
+    Raises:
+        ConfigError: invalid configuration, or no run directory to use, before any
+            process starts.
+        frl.federation.ClientFailure: a client's worker raised, died or timed out.
+    """
+    job_started = time.perf_counter()
+    settings = validate(cfg)
+    try:
+        run_dir, resuming = rundir.resolve(
+            _get(cfg, "resume", False), _get(cfg, "run_dir"), _hydra_output_dir()
+        )
+    except RunDirectoryError as error:
+        raise ConfigError(str(error)) from None
+    if resuming and _is_auto(cfg) and rundir.is_finished(run_dir):
+        log.info("skipping %s: the run there has finished (resume=auto)", run_dir)
+        return read_json(run_dir / rundir.RESULTS_FILE)
+    if resuming:
+        saved = load_run_config(run_dir)
+        _warn_about_changes(saved, cfg)
+        settings = validate(saved)
+        resolved: Any = saved
+        log.info("resuming %s", run_dir)
+    else:
+        resolved = cfg
+    progress = bool(_get(cfg, "progress", True)) and not _is_multirun()
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    to_save = (
+        OmegaConf.to_container(resolved, resolve=True)
+        if isinstance(resolved, DictConfig)
+        else dict(resolved)
+    )
+    to_save = {**to_save, "run_dir": os.fspath(run_dir), "resume": False}  # type: ignore[dict-item]
+    OmegaConf.save(OmegaConf.create(to_save), run_dir / rundir.CONFIG_FILE)
+    write_json_atomic(run_dir / rundir.VERSIONS_FILE, versions())
+
+    state = (rundir.read_state(run_dir) if resuming else None) or RunState()
+    if not state.training_finished:
+        state = train_rounds(settings, run_dir, state, progress, on_round_end)
+
+    results = training_results(settings, state, run_dir)
+    previous = rundir.read_results(run_dir)
+    if previous is not None and "evaluation" in previous:  # keep an earlier evaluation
+        results["evaluation"] = previous["evaluation"]
+    rundir.write_results(run_dir, results)
+
+    if settings.eval_episodes > 0:
+        from frl.evaluate import evaluate_run
+
+        began = time.perf_counter()
+        results["evaluation"] = evaluate_run(run_dir, progress=progress, verbose=True)
+        results["evaluation_wall_time_s"] = time.perf_counter() - began
+    results["job_wall_time_s"] = time.perf_counter() - job_started
+    rundir.write_results(run_dir, results)
+    _log_hparams(run_dir, settings, results)
+    log.info("run directory: %s", run_dir)
+    return results
+
+
+def train_rounds(
+    settings: TrainSettings,
+    run_dir: Path,
+    state: RunState,
+    progress: bool = False,
+    on_round_end: RoundHook | None = None,
+) -> RunState:
+    """The round loop on ``federation.backend``, from ``state`` to the end; the final state.
+
+    Under ``flower`` with the deployment runtime the rounds run in the ServerApp's
+    process, so ``on_round_end`` is not called there.
+    """
+    specs = settings.client_specs()
+    if settings.backend == "flower":
+        from frl.flower.launch import train_rounds as flower_rounds
+
+        return flower_rounds(settings, specs, run_dir, state, progress, on_round_end)
+    tb_dir = run_dir / rundir.TB_DIR
+    with (
+        TrainingLogger(
+            tb_dir, purge_step=resume_purge_step(tb_dir, state.steps_per_client)
+        ) as logger,
+        ProcessClientPool(
+            specs,
+            num_threads=settings.threads_per_worker,
+            timeout_s=settings.worker_timeout_s,
+        ) as pool,
+    ):
+        return Coordinator(settings.plan, pool, run_dir, logger, progress, on_round_end).run(state)
+
+
+def training_results(settings: TrainSettings, state: RunState, run_dir: Path) -> dict[str, Any]:
+    """The training and communication sections of ``results.json``."""
+    plan = settings.plan
+    step_rewards = rundir.read_step_rewards(run_dir)
+    tail = max(1, int(len(step_rewards) * FINAL_REWARD_FRACTION))
+    wall = state.wall_time_s
+    versions_path = run_dir / rundir.VERSIONS_FILE
+    return {
+        "scheme": plan.scheme,
+        "backend": settings.backend,
+        "seed": settings.seed,
+        "interval": plan.interval,
+        "total_steps": plan.total_steps,
+        "tasks": list(plan.tasks),
+        "clients": [spec.name for spec in settings.client_specs()],
+        "rounds": state.completed_rounds,
+        "communication": {
+            "aggregation": plan.aggregates,
+            "targets": plan.targets if plan.aggregates else None,
+            "bytes_per_upload": state.bytes_per_upload,
+            "bytes_per_download": state.bytes_per_download,
+            "uploads": state.uploads,
+            "downloads": state.downloads,
+            "total_bytes_up": state.total_bytes_up,
+            "total_bytes_down": state.total_bytes_down,
+            "total_bytes": state.total_bytes_up + state.total_bytes_down,
+        },
+        "training": {
+            "steps_per_client": state.steps_per_client,
+            "wall_time_s": wall,
+            "seconds_per_round": wall / state.completed_rounds if state.completed_rounds else None,
+            "local_training_s": state.local_training_s,
+            "client_cpu_s": state.client_cpu_s,
+            "client_training_s": state.client_training_s,
+            "outside_training_share": (
+                max(0.0, wall - state.client_training_s) / wall if wall else None
+            ),
+            "coordinator_overhead_s": state.coordinator_overhead_s,
+            "coordinator_overhead_share": state.coordinator_overhead_s / wall if wall else None,
+            "aggregation_s": state.aggregation_s,
+            "communication_s": state.communication_s,
+            "checkpoint_s": state.checkpoint_s,
+            "logging_s": state.logging_s,
+            "episodes": state.episodes,
+            "collisions": state.collisions,
+            "arrivals": state.arrivals,
+            "dropped_clients": state.dropped_clients,
+            "final_step_reward": float(step_rewards[-tail:].mean()) if len(step_rewards) else None,
+            "final_step_reward_definition": (
+                f"mean of train/step_reward over the last {FINAL_REWARD_FRACTION:.0%} of steps"
+            ),
+        },
+        # The versions the training ran with (written at the session's start); HEAD may
+        # have moved by now.
+        "versions": read_json(versions_path) if versions_path.exists() else versions(),
+        "run_dir": os.fspath(run_dir),
+    }
+
+
+# ------------------------------------------------------------------ the config
+def _get(cfg: Any, key: str, default: Any = None) -> Any:
+    return cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
+
+
+def _is_auto(cfg: Any) -> bool:
+    resume = _get(cfg, "resume", False)
+    return isinstance(resume, str) and resume.lower() == "auto"
+
+
+def _is_multirun() -> bool:
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
+
+
+def _hydra_output_dir() -> Path | None:
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        return Path(HydraConfig.get().runtime.output_dir)
+    return None
+
+
+def _warn_about_changes(saved: DictConfig, cfg: Any) -> None:
+    """Log the keys given on the command line that the saved config overrules."""
+    if not isinstance(cfg, DictConfig):
+        return
+    old = OmegaConf.to_container(saved, resolve=True)
+    new = OmegaConf.to_container(cfg, resolve=True)
+    changed = [key for key in _diff(old, new) if key.split(".")[0] not in _VOLATILE_KEYS]
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():  # only what the user typed, not the defaults
+        typed = [o.split("=")[0].lstrip("+~") for o in HydraConfig.get().overrides.task]
+        changed = [k for k in changed if any(k == t or k.startswith(f"{t}.") for t in typed)]
+    if changed:
+        log.warning(
+            "resuming with the run's saved config; ignoring changed keys: %s", ", ".join(changed)
+        )
+
+
+def _diff(old: Any, new: Any, prefix: str = "") -> list[str]:
+    if isinstance(old, dict) and isinstance(new, dict):
+        keys = sorted(set(old) | set(new))
+        return [d for k in keys for d in _diff(old.get(k), new.get(k), f"{prefix}{k}.")]
+    return [prefix.rstrip(".")] if old != new else []
+
+
+def _log_hparams(run_dir: Path, settings: TrainSettings, results: dict[str, Any]) -> None:
+    plan, agent = settings.plan, settings.agent
+    hparams = {
+        "scheme": plan.scheme,
+        "interval": plan.interval,
+        "total_steps": plan.total_steps,
+        "seed": settings.seed,
+        "targets": plan.targets,
+        "weighting": plan.weighting,
+        "initial_model": "shared" if plan.shares_initial_model else "independent",
+        "reward": settings.reward.name,
+        "hidden_sizes": list(agent.hidden_sizes),
+        "actor_lr": agent.actor_lr,
+        "critic_lr": agent.critic_lr,
+        "batch_size": agent.batch_size,
+        "tau": agent.tau,
+        "learning_starts": agent.learning_starts,
+        "noise_sigma": agent.noise_sigma,
+    }
+    metrics = ["train/final_step_reward", "server/bytes_total"]
+    if "evaluation" in results:
+        metrics += [
+            f"eval/average/{name}"
+            for name in ("average_reward", "collision_rate", "average_travel_time")
+        ]
+    with TrainingLogger(run_dir / rundir.TB_DIR) as logger:
+        final = results["training"]["final_step_reward"]
+        if final is not None:
+            logger.writer.add_scalar("train/final_step_reward", final, plan.total_steps)
+        logger.log_hparams(hparams, metrics)

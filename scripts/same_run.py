@@ -1,0 +1,81 @@
+"""Are two finished runs the same, bit for bit? Their test tables, models and step rewards.
+
+    python scripts/same_run.py RUN_A RUN_B
+
+Compares ``results.json``'s evaluation (per-task tables, averages, yardsticks), every
+tensor of every final model under ``models/`` and ``step_rewards.npy``. Used to show
+that a refactoring left a run unchanged: train the same quick config at the same seed
+before and after, then compare. Exit code 0 when everything is equal, 1 otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from frl import run_directory as rundir
+
+
+def tensors(value: Any, prefix: str = "") -> dict[str, torch.Tensor]:
+    """Every tensor inside a checkpoint's nested dicts, by dotted key."""
+    if isinstance(value, torch.Tensor):
+        return {prefix: value}
+    if isinstance(value, dict):
+        found: dict[str, torch.Tensor] = {}
+        for key, item in value.items():
+            found.update(tensors(item, f"{prefix}.{key}" if prefix else str(key)))
+        return found
+    return {}
+
+
+def differences(a: Path, b: Path) -> list[str]:
+    found = []
+    results_a, results_b = rundir.read_results(a) or {}, rundir.read_results(b) or {}
+    for key in ("per_task", "average", "yardsticks"):
+        left = results_a.get("evaluation", {}).get(key)
+        right = results_b.get("evaluation", {}).get(key)
+        if left is None or left != right:
+            found.append(f"evaluation.{key} differs")
+    models_a = sorted(p.name for p in (a / rundir.MODELS_DIR).glob("*.pt"))
+    models_b = sorted(p.name for p in (b / rundir.MODELS_DIR).glob("*.pt"))
+    if not models_a or models_a != models_b:
+        found.append(f"model files differ: {models_a} vs {models_b}")
+    for name in set(models_a) & set(models_b):
+        left = tensors(torch.load(a / rundir.MODELS_DIR / name, weights_only=True))
+        right = tensors(torch.load(b / rundir.MODELS_DIR / name, weights_only=True))
+        if left.keys() != right.keys():
+            found.append(f"{name}: different tensors")
+        found += [
+            f"{name}: {k} differs"
+            for k in left
+            if k in right and not torch.equal(left[k], right[k])
+        ]
+    if not np.array_equal(rundir.read_step_rewards(a), rundir.read_step_rewards(b)):
+        found.append("step rewards differ")
+    return found
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_a", type=Path)
+    parser.add_argument("run_b", type=Path)
+    args = parser.parse_args()
+    for run in (args.run_a, args.run_b):
+        if rundir.read_results(run) is None:
+            parser.error(f"{run} holds no finished run (no {rundir.RESULTS_FILE})")
+    found = differences(args.run_a, args.run_b)
+    for line in found:
+        print(line)
+    if not found:
+        models = len(list((args.run_a / rundir.MODELS_DIR).glob("*.pt")))
+        print(f"identical: evaluation tables, {models} model(s), step rewards")
+    return 1 if found else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
