@@ -128,6 +128,7 @@ def train_rounds(
             specs,
             num_threads=settings.threads_per_worker,
             timeout_s=settings.worker_timeout_s,
+            state_dir=run_dir,
         ) as pool,
     ):
         return Coordinator(settings.plan, pool, run_dir, logger, progress, on_round_end).run(state)

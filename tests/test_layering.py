@@ -22,10 +22,10 @@ import frl
 PACKAGE_DIR = Path(frl.__file__).resolve().parent
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("frl", "frl.fileio", "frl.conf"),
+    ("frl", "frl.fileio", "frl.frames", "frl.conf"),
     ("frl.run_directory", "frl.envs", "frl.agents"),
     ("frl.episodes", "frl.policies", "frl.recording", "frl.yardsticks", "frl.provenance"),
-    ("frl.federation",),
+    ("frl.federation", "frl.vehicle_host"),
     ("frl.train_config",),
     ("frl.flower", "frl.evaluate"),
     ("frl.training",),
@@ -142,7 +142,7 @@ def test_importing_each_module_alone_brings_no_module_from_a_layer_above():
     assert set(loaded) == set(importable)
 
 
-@pytest.mark.parametrize("module", ["frl.flower.vehicle", "frl.flower.frames"])
+@pytest.mark.parametrize("module", ["frl.flower.vehicle", "frl.vehicle_host", "frl.frames"])
 def test_the_client_apps_relay_modules_stay_light(module):
     """The ClientApp starts afresh for every message: its relay must not pull torch or SUMO."""
     script = (

@@ -2,7 +2,8 @@
 
 - :func:`fedavg`: the pure Eq. (3) average of parameter dicts.
 - :class:`VehicleClient`: env + agent + local training, independent of transport.
-- :class:`WorkerPool` / :class:`ProcessClientPool`: one spawned process per client.
+- :class:`WorkerPool` / :class:`ProcessClientPool`: one spawned process per client,
+  spoken to in the frames of :mod:`frl.vehicle_host`, as Flower's vehicles are.
 - :class:`Coordinator`: the roadside unit's rounds, aggregation, logging, checkpoints.
 - :class:`FederationPlan`: the schemes ``central``, ``separate``, ``fedavg``.
 

@@ -1,6 +1,6 @@
 """The Flower backend (``federation.backend=flower``; ``pip install frl[flower]``).
 
-- :mod:`~frl.flower.codec`: what crosses the wire, without pickle.
+- :mod:`~frl.federation.codec`: what crosses the wire, without pickle.
 - :mod:`~frl.flower.vehicle`: the long-lived vehicle process behind a ClientApp.
 - :mod:`~frl.flower.messages`: the Flower messages between roadside unit and vehicle.
 - :mod:`~frl.flower.client_app`: the ClientApp, a relay to the vehicle process.

@@ -15,7 +15,6 @@ from collections.abc import Callable
 from flwr.app import ConfigRecord, Context, Message, MetricRecord, RecordDict
 from flwr.clientapp import ClientApp
 
-from frl.flower.frames import Arrays, prefixed, unprefixed
 from frl.flower.messages import (
     AUTHKEY_KEY,
     METRICS,
@@ -36,6 +35,7 @@ from frl.flower.vehicle import (
     VehicleError,
     call_vehicle,
 )
+from frl.frames import Arrays, prefixed, unprefixed
 
 EndpointLookup = Callable[[Context], VehicleEndpoint]
 

@@ -29,12 +29,12 @@ from torch import Tensor
 
 from frl.federation.client import ClientSpec, LocalUpdate
 from frl.federation.client_pool import ProgressHook
-from frl.federation.workers import ClientFailure
-from frl.flower.codec import (
+from frl.federation.codec import (
     spec_to_json,
     tensors_to_arrays,
     update_from_parts,
 )
+from frl.federation.workers import ClientFailure
 from frl.flower.messages import (
     METRICS,
     PARAMETERS,
@@ -292,7 +292,7 @@ def write_model(spec: ClientSpec, arrays: Mapping[str, Any], path: Path) -> None
 
     from frl.agents import DDPG
     from frl.envs import IntersectionEnv
-    from frl.flower.codec import arrays_to_tensors
+    from frl.federation.codec import arrays_to_tensors
 
     env = IntersectionEnv(dataclasses.replace(spec.env, task=spec.task), spec.reward)
     agent = DDPG(env.observation_space, env.action_space, spec.agent, seed=spec.agent_seed)

@@ -8,8 +8,9 @@ each vehicle keeps them in its own long-lived process, this module's *vehicle se
 and the ClientApp only relays: it opens the service's Unix socket, forwards the request
 and returns the answer as the Flower reply.
 
-The local channel carries :func:`frl.flower.codec.encode_frame` frames (JSON
-and ``.npz``, no pickle) after ``multiprocessing``'s HMAC handshake with a random key.
+The local channel carries :mod:`frl.frames` frames (JSON
+and ``.npz``, no pickle; the same requests as the process backend's worker pipes) after
+``multiprocessing``'s HMAC handshake with a random key.
 Requests are served one at a time, in order: a vehicle does one thing at a time.
 
 Checkpoints are written under the service's ``state_dir`` (the run directory when
@@ -37,14 +38,24 @@ import numpy as np
 
 # Light imports only: the ClientApp imports this module for every message. The vehicle's
 # own work (torch, SUMO) is imported in the vehicle process, by VehicleHost.
-from frl.flower.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
+from frl.frames import Arrays, decode_frame, encode_frame
+from frl.vehicle_host import (
+    PARAMETERS_PREFIX,
+    SERIES_PREFIX,
+    VehicleError,
+    VehicleHost,
+)
 
-SERIES_PREFIX = "series/"
-PARAMETERS_PREFIX = "parameters/"
-
-
-class VehicleError(RuntimeError):
-    """The vehicle process failed a request, or could not be reached."""
+__all__ = [
+    "PARAMETERS_PREFIX",
+    "SERIES_PREFIX",
+    "VehicleEndpoint",
+    "VehicleError",
+    "VehicleHost",
+    "VehicleService",
+    "call_vehicle",
+    "serve",
+]
 
 
 @dataclass(frozen=True)
@@ -57,98 +68,6 @@ class VehicleEndpoint:
 
 
 # ----------------------------------------------------------------- the vehicle's state
-class VehicleHost:
-    """What the vehicle process holds across rounds, and the requests it answers.
-
-    Requests (``header["op"]``): ``setup`` builds the vehicle of a run (idempotent);
-    ``train`` runs local training; ``sync`` loads the global model and/or writes a
-    checkpoint; ``load`` restores one; ``model`` returns the full model for saving.
-    """
-
-    def __init__(self, state_dir: str | os.PathLike[str]) -> None:
-        self.state_dir = Path(state_dir)
-        self.client: Any = None
-        self.run_key: str | None = None
-        self.spec_json: str | None = None
-
-    def handle(self, header: Mapping[str, Any], arrays: Arrays) -> tuple[dict[str, Any], Arrays]:
-        from frl.flower.codec import (
-            arrays_to_tensors,
-            tensors_to_arrays,
-            update_to_parts,
-        )
-
-        op = header["op"]
-        if op == "ping":
-            return {"run_key": self.run_key}, {}
-        if op == "setup":
-            return self._setup(str(header["run_key"]), str(header["spec"])), {}
-        client = self.client
-        if client is None or header.get("run_key") != self.run_key:
-            raise VehicleError(f"{op!r} for run {header.get('run_key')!r}, which was not set up")
-        if op == "train":
-            update = client.train(
-                int(header["num_steps"]),
-                upload=bool(header["upload"]),
-                include_targets=bool(header["include_targets"]),
-            )
-            parameters, series, summary = update_to_parts(update)
-            out = prefixed(series, SERIES_PREFIX)
-            if parameters is not None:
-                out.update(prefixed(parameters, PARAMETERS_PREFIX))
-            return {"summary": summary, "upload": parameters is not None}, out
-        if op == "sync":
-            if header.get("parameters"):
-                parameters = arrays_to_tensors(unprefixed(arrays, PARAMETERS_PREFIX))
-                client.set_parameters(parameters, sync_targets=bool(header["sync_targets"]))
-            if header.get("checkpoint"):
-                self._save(str(header["checkpoint"]))
-            return {}, {}
-        if op == "load":
-            client.load(self._path(str(header["checkpoint"])))
-            return {}, {}
-        if op == "model":
-            return {}, prefixed(tensors_to_arrays(client.get_parameters(True)), PARAMETERS_PREFIX)
-        raise VehicleError(f"unknown request {op!r}")
-
-    def _setup(self, run_key: str, spec_json: str) -> dict[str, Any]:
-        if self.client is not None and (run_key, spec_json) == (self.run_key, self.spec_json):
-            return {"client": self.client.name, "built": False}  # a repeated setup
-        self.close()
-        from frl.federation.client import VehicleClient
-        from frl.flower.codec import spec_from_json
-
-        self.client = VehicleClient(spec_from_json(spec_json))
-        self.run_key, self.spec_json = run_key, spec_json
-        return {"client": self.client.name, "built": True}
-
-    def _path(self, relative: str) -> Path:
-        path = (self.state_dir / relative).resolve()
-        if self.state_dir.resolve() not in path.parents:
-            raise VehicleError(f"checkpoint {relative!r} lies outside the vehicle's state_dir")
-        return path
-
-    def _save(self, relative: str) -> None:
-        directory = self._path(relative)
-        self.client.save(directory)
-        # Keep this round and the one before (the last committed one); drop older files
-        # of this vehicle. Where state_dir is the run directory, the roadside unit prunes too.
-        name = self.client.name
-        rounds = sorted(p for p in directory.parent.glob("round_*") if p.name < directory.name)
-        for old in rounds[:-1]:
-            for suffix in (".pt", ".json"):
-                (old / f"{name}{suffix}").unlink(missing_ok=True)
-            with contextlib.suppress(OSError):
-                old.rmdir()
-
-    def close(self) -> None:
-        if self.client is not None:
-            with contextlib.suppress(Exception):
-                self.client.close()
-        self.client = None
-        self.run_key = self.spec_json = None
-
-
 # ----------------------------------------------------------------- the process
 def serve(address: str, authkey: bytes, state_dir: str, num_threads: int) -> None:
     """Entry point of the vehicle process: answer requests on ``address`` until killed."""
@@ -165,10 +84,9 @@ def serve(address: str, authkey: bytes, state_dir: str, num_threads: int) -> Non
                 continue
             with conn:
                 try:
-                    header, arrays = decode_frame(conn.recv_bytes())
+                    request = conn.recv_bytes()
                     try:
-                        reply, out = host.handle(header, arrays)
-                        frame = encode_frame({"ok": True, **reply}, out)
+                        frame = host.serve(request)
                     except Exception as error:
                         frame = encode_frame(
                             {

@@ -9,13 +9,13 @@ from train_helpers import tiny_spec
 
 from frl.episodes import EpisodeRecord
 from frl.federation.client import LocalUpdate
-from frl.flower.codec import (
+from frl.federation.codec import (
     spec_from_json,
     spec_to_json,
     update_from_parts,
     update_to_parts,
 )
-from frl.flower.frames import decode_frame, encode_frame
+from frl.frames import decode_frame, encode_frame
 
 
 def test_a_client_spec_survives_json():

@@ -1,8 +1,10 @@
-"""Frames of the local channel between a ClientApp and its vehicle process, without pickle.
+"""Frames: every message to and from a vehicle process, without pickle.
 
 A frame is a length-prefixed JSON header followed by an ``.npz`` archive of arrays,
-read back with ``allow_pickle=False``. Only numpy and the standard library are
-imported here: the ClientApp, started afresh for every message, must start fast.
+read back with ``allow_pickle=False``. Both backends speak it to their vehicle
+processes (:mod:`frl.vehicle_host` answers). Only numpy and the standard
+library are imported here: a Flower ClientApp, started afresh for every message, must
+start fast.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """What crosses the wire between a vehicle and the roadside unit, without pickle.
 
-Two encodings of the same content:
+A vehicle's specification, its updates and model parameters as plain parts: JSON-able
+headers and numpy arrays. Two carriers move the same parts:
 
-- Flower messages carry arrays (numpy, serialised by Flower with ``allow_pickle=False``)
-  and JSON text in a ``ConfigRecord``; :mod:`frl.flower.messages` builds them
-  from the plain parts below.
-- The local channel between a ClientApp and its vehicle process carries the same parts
-  as frames (:mod:`frl.flower.frames`).
+- frames (:mod:`frl.frames`) between the roadside unit's side and a vehicle
+  process: over a worker pipe (``federation.backend=processes``) or a Flower vehicle's
+  Unix socket;
+- Flower messages (:mod:`frl.flower.messages`) between a ServerApp and its ClientApps.
 
 Nothing here imports Flower, so the vehicle process does not need it.
 """
@@ -26,7 +26,7 @@ from frl.agents import DDPGConfig
 from frl.envs import EnvConfig, RewardConfig
 from frl.episodes import EpisodeRecord
 from frl.federation.client import ClientSpec, LocalUpdate
-from frl.flower.frames import Arrays, prefixed, unprefixed
+from frl.frames import Arrays, prefixed, unprefixed
 
 PARAMETER_PREFIX = "param/"
 LOSS_PREFIX = "loss/"

@@ -1,0 +1,138 @@
+"""The vehicle's side of the wire: a :class:`VehicleHost` answers request frames.
+
+Both backends talk to a vehicle process in the same requests (:class:`VehicleHost`)
+and the same frames (:mod:`frl.frames`): ``federation.backend=processes``
+over each worker's pipe (:class:`frl.federation.ProcessClientPool`), ``flower`` over
+the vehicle process's Unix socket that its ClientApp relays to
+(:mod:`frl.flower.vehicle`).
+
+Light imports only: a Flower ClientApp imports this module for every message. The
+vehicle's own work (torch, SUMO) is imported when a vehicle is set up.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from frl.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
+
+SERIES_PREFIX = "series/"
+PARAMETERS_PREFIX = "parameters/"
+
+
+class VehicleError(RuntimeError):
+    """The vehicle process failed a request, or could not be reached."""
+
+
+class VehicleHost:
+    """What the vehicle process holds across rounds, and the requests it answers.
+
+    Requests (``header["op"]``): ``ping``; ``setup`` builds the vehicle of a run
+    (idempotent); ``train`` runs local training; ``sync`` loads the global model and/or
+    writes a checkpoint; ``load`` restores one; ``model`` returns the full model (Flower:
+    the roadside unit writes it); ``save_model`` writes it under ``state_dir``. Paths
+    are relative to ``state_dir`` and must stay inside it.
+    """
+
+    def __init__(self, state_dir: str | os.PathLike[str]) -> None:
+        self.state_dir = Path(state_dir)
+        self.client: Any = None
+        self.run_key: str | None = None
+        self.spec_json: str | None = None
+
+    def serve(self, frame: bytes, progress: Callable[..., None] | None = None) -> bytes:
+        """Answer one request frame with a reply frame (the worker-pipe carrier)."""
+        header, arrays = decode_frame(frame)
+        reply, out = self.handle(header, arrays, progress)
+        return encode_frame({"ok": True, **reply}, out)
+
+    def handle(
+        self,
+        header: Mapping[str, Any],
+        arrays: Arrays,
+        progress: Callable[..., None] | None = None,
+    ) -> tuple[dict[str, Any], Arrays]:
+        """One request: its reply header and arrays. ``progress`` sees local training."""
+        from frl.federation.codec import (
+            arrays_to_tensors,
+            tensors_to_arrays,
+            update_to_parts,
+        )
+
+        op = header["op"]
+        if op == "ping":
+            return {"run_key": self.run_key}, {}
+        if op == "setup":
+            return self._setup(str(header["run_key"]), str(header["spec"])), {}
+        client = self.client
+        if client is None or header.get("run_key") != self.run_key:
+            raise VehicleError(f"{op!r} for run {header.get('run_key')!r}, which was not set up")
+        if op == "train":
+            update = client.train(
+                int(header["num_steps"]),
+                upload=bool(header["upload"]),
+                include_targets=bool(header["include_targets"]),
+                progress=progress,
+            )
+            parameters, series, summary = update_to_parts(update)
+            out = prefixed(series, SERIES_PREFIX)
+            if parameters is not None:
+                out.update(prefixed(parameters, PARAMETERS_PREFIX))
+            return {"summary": summary, "upload": parameters is not None}, out
+        if op == "sync":
+            if header.get("parameters"):
+                parameters = arrays_to_tensors(unprefixed(arrays, PARAMETERS_PREFIX))
+                client.set_parameters(parameters, sync_targets=bool(header["sync_targets"]))
+            if header.get("checkpoint"):
+                self._save(str(header["checkpoint"]))
+            return {}, {}
+        if op == "load":
+            client.load(self._path(str(header["checkpoint"])))
+            return {}, {}
+        if op == "model":
+            return {}, prefixed(tensors_to_arrays(client.get_parameters(True)), PARAMETERS_PREFIX)
+        if op == "save_model":
+            client.save_model(self._path(str(header["path"])))
+            return {}, {}
+        raise VehicleError(f"unknown request {op!r}")
+
+    def _setup(self, run_key: str, spec_json: str) -> dict[str, Any]:
+        if self.client is not None and (run_key, spec_json) == (self.run_key, self.spec_json):
+            return {"client": self.client.name, "built": False}  # a repeated setup
+        self.close()
+        from frl.federation.client import VehicleClient
+        from frl.federation.codec import spec_from_json
+
+        self.client = VehicleClient(spec_from_json(spec_json))
+        self.run_key, self.spec_json = run_key, spec_json
+        return {"client": self.client.name, "built": True}
+
+    def _path(self, relative: str) -> Path:
+        path = (self.state_dir / relative).resolve()
+        if self.state_dir.resolve() not in path.parents:
+            raise VehicleError(f"{relative!r} lies outside the vehicle's state_dir")
+        return path
+
+    def _save(self, relative: str) -> None:
+        directory = self._path(relative)
+        self.client.save(directory)
+        # Keep this round and the one before (the last committed one); drop older files
+        # of this vehicle. Where state_dir is the run directory, the roadside unit prunes too.
+        name = self.client.name
+        rounds = sorted(p for p in directory.parent.glob("round_*") if p.name < directory.name)
+        for old in rounds[:-1]:
+            for suffix in (".pt", ".json"):
+                (old / f"{name}{suffix}").unlink(missing_ok=True)
+            with contextlib.suppress(OSError):
+                old.rmdir()
+
+    def close(self) -> None:
+        if self.client is not None:
+            with contextlib.suppress(Exception):
+                self.client.close()
+        self.client = None
+        self.run_key = self.spec_json = None
