@@ -29,13 +29,8 @@ from hydra.experimental.callback import Callback
 
 from frl.fileio import read_json
 from frl.report.collect import FIGURE_DIRS
-from frl.report.runs import (
-    RESULTS_FILE,
-    RunDataError,
-    export_run,
-    exported_results,
-    is_finished,
-)
+from frl.report.runs import RunDataError, export_run, exported_results, is_finished
+from frl.run_directory import RESULTS_FILE
 
 log = logging.getLogger("frl.reproduce")
 

@@ -18,15 +18,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from frl.report.runs import (
-    CONFIG_FILE,
-    RESULTS_FILE,
-    STATE_FILE,
-    RunDataError,
-    RunRecord,
-    is_finished,
-    load_run,
-)
+from frl.report.runs import RunDataError, RunRecord, is_finished, load_run
+from frl.run_directory import CONFIG_FILE, RESULTS_FILE, STATE_FILE
 
 FIGURE_DIRS: tuple[str, ...] = ("fig4", "fig6", "fig3")
 """Sweep directories; Fig. 5 is read from fig4's runs."""
