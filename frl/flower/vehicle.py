@@ -21,12 +21,13 @@ buffers never leave the vehicle.
 from __future__ import annotations
 
 import contextlib
+import functools
 import multiprocessing as mp
 import os
 import secrets
 import shutil
 import tempfile
-import time
+import threading
 import traceback
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -49,12 +50,12 @@ from frl.vehicle_host import (
 __all__ = [
     "PARAMETERS_PREFIX",
     "SERIES_PREFIX",
+    "SocketVehicle",
     "VehicleEndpoint",
     "VehicleError",
     "VehicleHost",
     "VehicleService",
     "call_vehicle",
-    "serve",
 ]
 
 
@@ -69,24 +70,32 @@ class VehicleEndpoint:
 
 # ----------------------------------------------------------------- the vehicle's state
 # ----------------------------------------------------------------- the process
-def serve(address: str, authkey: bytes, state_dir: str, num_threads: int) -> None:
-    """Entry point of the vehicle process: answer requests on ``address`` until killed."""
-    from frl.federation.workers import prepare_worker_process
+class SocketVehicle:
+    """A :class:`VehicleHost` answering frames on a Unix socket, one connection per request.
 
-    prepare_worker_process(num_threads)
-    host = VehicleHost(state_dir)
-    listener = Listener(address, family="AF_UNIX", authkey=authkey)
-    try:
-        while True:
+    Hosted in a worker process of :class:`frl.federation.WorkerPool`, which starts,
+    watches and stops it as it does the process backend's vehicles; a thread serves the
+    socket while the worker's own loop keeps its pipe to the parent.
+    """
+
+    def __init__(self, address: str, authkey: str, state_dir: str) -> None:
+        self.host = VehicleHost(state_dir)
+        self.closed = False
+        self.listener = Listener(address, family="AF_UNIX", authkey=bytes.fromhex(authkey))
+        self.thread = threading.Thread(target=self._serve, name="frl-vehicle-socket", daemon=True)
+        self.thread.start()
+
+    def _serve(self) -> None:
+        while not self.closed:
             try:
-                conn = listener.accept()
+                conn = self.listener.accept()
             except (mp.AuthenticationError, OSError, EOFError):
                 continue
             with conn:
                 try:
                     request = conn.recv_bytes()
                     try:
-                        frame = host.serve(request)
+                        frame = self.host.serve(request)
                     except Exception as error:
                         frame = encode_frame(
                             {
@@ -98,9 +107,12 @@ def serve(address: str, authkey: bytes, state_dir: str, num_threads: int) -> Non
                     conn.send_bytes(frame)
                 except (EOFError, OSError):  # the ClientApp went away; keep serving
                     continue
-    finally:
-        host.close()
-        listener.close()
+
+    def close(self) -> None:
+        self.closed = True
+        with contextlib.suppress(OSError):
+            self.listener.close()
+        self.host.close()
 
 
 def call_vehicle(
@@ -141,7 +153,7 @@ class VehicleService:
         state_dir: where the vehicle writes its checkpoints.
         num_threads: torch threads of the vehicle process.
         socket_dir: directory of the Unix socket; default: a private temporary one.
-        start_timeout_s: longest the process may take to answer its first ping.
+        start_timeout_s: longest the process may take to open its socket.
         name: the process's name (``multiprocessing``'s, for logs and tests).
     """
 
@@ -166,11 +178,11 @@ class VehicleService:
             address=os.fspath(directory / f"vehicle-{secrets.token_hex(4)}.sock"),
             authkey=secrets.token_hex(16),
         )
-        self._process: mp.process.BaseProcess | None = None
+        self._pool: Any = None
 
     @property
     def pid(self) -> int | None:
-        return None if self._process is None else self._process.pid
+        return None if self._pool is None else self._pool.pids[0]
 
     def __enter__(self) -> VehicleService:
         self.start()
@@ -180,41 +192,31 @@ class VehicleService:
         self.close()
 
     def start(self) -> None:
-        context = mp.get_context("spawn")
-        self._process = context.Process(
-            target=serve,
-            args=(
-                self.endpoint.address,
-                bytes.fromhex(self.endpoint.authkey),
-                os.fspath(self.state_dir),
-                self.num_threads,
-            ),
-            name=self.name,
-            daemon=True,
+        """Spawn the vehicle process; return once its socket accepts requests."""
+        from frl.federation.workers import ClientFailure, WorkerPool
+
+        host = functools.partial(
+            SocketVehicle,
+            self.endpoint.address,
+            self.endpoint.authkey,
+            os.fspath(self.state_dir),
         )
-        self._process.start()
-        deadline = time.monotonic() + self.start_timeout_s
-        while True:
-            if not self._process.is_alive():
-                code = self._process.exitcode
-                self.close()
-                raise VehicleError(f"the vehicle process exited on start (exit code {code})")
-            if os.path.exists(self.endpoint.address):
-                with contextlib.suppress(VehicleError):
-                    call_vehicle(self.endpoint, {"op": "ping"}, timeout_s=10.0)
-                    return
-            if time.monotonic() > deadline:
-                self.close()
-                raise VehicleError(f"the vehicle process did not start in {self.start_timeout_s} s")
-            time.sleep(0.05)
+        self._pool = WorkerPool(
+            [(self.name.removeprefix("frl-"), host)],
+            num_threads=self.num_threads,
+            start_timeout_s=self.start_timeout_s,
+        )
+        try:
+            self._pool.start()
+        except ClientFailure as error:
+            self.close()
+            raise VehicleError(f"the vehicle process did not start: {error.reason}") from None
 
     def close(self) -> None:
-        """Stop the process (SIGTERM, then SIGKILL); safe to call twice."""
-        process, self._process = self._process, None
-        if process is not None:
-            from frl.federation.workers import stop_processes
-
-            stop_processes([process])
+        """Stop the process (politely, then SIGTERM, then SIGKILL); safe to call twice."""
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.close(graceful=True)
         with contextlib.suppress(OSError):
             os.unlink(self.endpoint.address)
         if self._own_dir:
