@@ -186,13 +186,7 @@ def evaluate_run(
     episodes = settings.eval_episodes if episodes is None else int(episodes)
     if episodes <= 0:
         raise ValueError(f"episodes must be positive, got {episodes}")
-    try:
-        files = rundir.model_files(run_dir)
-    except rundir.RunDirectoryError:
-        raise FileNotFoundError(
-            f"{run_dir} has no {rundir.MODELS_DIR}/{rundir.MODEL_INDEX_FILE}: training has not "
-            "finished (resume it with `python -m frl.train resume=RUN_DIR`)"
-        ) from None
+    files = rundir.model_files(run_dir)
     for path in set(files.values()):  # a missing or corrupt model fails here, not in a worker
         read_checkpoint(path)
     model_files = {task: path.name for task, path in files.items()}

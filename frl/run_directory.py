@@ -138,6 +138,14 @@ def write_step_rewards(run_dir: Path, step_rewards: np.ndarray) -> None:
     write_bytes_atomic(Path(run_dir) / STEP_REWARDS_FILE, buffer.getvalue())
 
 
+def relative_path(path: Path, root: Path) -> str:
+    """``path`` relative to ``root`` (a run or vehicle state directory), as vehicles get it."""
+    try:
+        return str(Path(path).resolve().relative_to(Path(root).resolve()))
+    except ValueError:
+        raise ValueError(f"{path} lies outside {root}") from None
+
+
 def checkpoint_dir(completed_rounds: int) -> str:
     """Where the clients' states after round ``completed_rounds`` go, relative to the run."""
     return f"{CHECKPOINT_DIR}/round_{completed_rounds:04d}"
@@ -178,12 +186,12 @@ def read_saved_config(run_dir: Path) -> dict[str, Any]:
 
 
 def model_files(run_dir: Path) -> dict[str, Path]:
-    """Each task's model file (``models/index.json``); :class:`RunDirectoryError` if absent."""
+    """Each task's model file (``models/index.json``); ``FileNotFoundError`` if absent."""
     index = Path(run_dir) / MODELS_DIR / MODEL_INDEX_FILE
     if not index.is_file():
-        raise RunDirectoryError(
-            f"{run_dir} holds no trained model ({MODELS_DIR}/{MODEL_INDEX_FILE} is missing); "
-            "has its training finished?"
+        raise FileNotFoundError(
+            f"{run_dir} has no {MODELS_DIR}/{MODEL_INDEX_FILE}: training has not finished "
+            "(resume it with `python -m frl.train resume=RUN_DIR`)"
         )
     return {task: Path(run_dir) / MODELS_DIR / name for task, name in read_json(index).items()}
 

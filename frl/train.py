@@ -20,7 +20,7 @@ import sys
 
 from omegaconf import DictConfig
 
-from frl.train_config import ConfigError, register_configs
+from frl.train_config import ConfigError, one_line_error, register_configs
 from frl.training import train
 
 __all__ = ["main", "train"]
@@ -74,7 +74,7 @@ def override_error(argv: list[str]) -> str | None:
     try:
         parsed = OverridesParser.create().parse_overrides(lines)
     except HydraException as error:
-        return _one_line(error)
+        return one_line_error(error)
     first, variants = [], []
     for override in parsed:
         if override.key_or_group.startswith("hydra."):
@@ -92,26 +92,8 @@ def override_error(argv: list[str]) -> str | None:
             try:
                 compose(config_name="config", overrides=overrides)
             except (HydraException, OmegaConfBaseException) as error:
-                return _one_line(error)
+                return one_line_error(error)
     return None
-
-
-def _one_line(error: BaseException) -> str:
-    """Hydra's and OmegaConf's message with its cause, without their context lines."""
-    parts: list[str] = []
-    key = None
-    for link in (error, error.__cause__):
-        if link is None:
-            continue
-        lines = [line.strip() for line in str(link).splitlines() if line.strip()]
-        key = key or next((line for line in lines if line.startswith("full_key:")), None)
-        text = next(
-            (line for line in lines if not line.startswith(("full_key:", "object_type"))), ""
-        )
-        if text and text not in parts:
-            parts.append(text)
-    message = ": ".join(parts) or type(error).__name__
-    return f"{message} ({key})" if key and key != "full_key:" else message
 
 
 if __name__ == "__main__":

@@ -361,14 +361,24 @@ def _complete(cfg: DictConfig | TrainSchema | dict[str, Any]) -> dict[str, Any]:
         merged = OmegaConf.merge(OmegaConf.structured(TrainSchema), given)
         return OmegaConf.to_container(merged, resolve=True)  # type: ignore[return-value]
     except OmegaConfBaseException as error:
-        raise ConfigError(_one_line(error)) from None
+        raise ConfigError(one_line_error(error)) from None
 
 
-def _one_line(error: Exception) -> str:
-    """OmegaConf's message without its ``full_key: ...`` context lines."""
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    key = next((line for line in lines if line.startswith("full_key:")), None)
-    message = lines[0] if lines else type(error).__name__
+def one_line_error(error: BaseException) -> str:
+    """Hydra's or OmegaConf's message, with its cause, in one line without context lines."""
+    parts: list[str] = []
+    key = None
+    for link in (error, error.__cause__):
+        if link is None:
+            continue
+        lines = [line.strip() for line in str(link).splitlines() if line.strip()]
+        key = key or next((line for line in lines if line.startswith("full_key:")), None)
+        text = next(
+            (line for line in lines if not line.startswith(("full_key:", "object_type"))), ""
+        )
+        if text and text not in parts:
+            parts.append(text)
+    message = ": ".join(parts) or type(error).__name__
     return f"{message} ({key})" if key and key != "full_key:" else message
 
 
@@ -384,7 +394,7 @@ def load_run_config(run_dir: str | Path) -> DictConfig:
     try:
         merged = OmegaConf.merge(OmegaConf.structured(TrainSchema), migrate_saved_config(saved))
     except OmegaConfBaseException as error:
-        raise ConfigError(f"{run_dir}/config.yaml: {_one_line(error)}") from None
+        raise ConfigError(f"{run_dir}/config.yaml: {one_line_error(error)}") from None
     return merged  # type: ignore[return-value]
 
 

@@ -22,6 +22,7 @@ from frl.federation.codec import (
 )
 from frl.federation.workers import MessageHook, WorkerPool
 from frl.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
+from frl.run_directory import relative_path
 from frl.vehicle_host import PARAMETERS_PREFIX, SERIES_PREFIX, VehicleHost
 
 ProgressHook = Callable[[int, dict[str, Any]], None]
@@ -179,7 +180,4 @@ class ProcessClientPool:
         self._exchange(headers, workers=chosen)
 
     def _relative(self, path: Path) -> str:
-        try:
-            return os.fspath(Path(path).resolve().relative_to(self.state_dir.resolve()))
-        except ValueError:
-            raise ValueError(f"{path} lies outside the pool's state_dir {self.state_dir}") from None
+        return relative_path(path, self.state_dir)

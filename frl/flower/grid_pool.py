@@ -17,7 +17,6 @@ a stopped run resumes from it (``resume=RUN_DIR``).
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -45,6 +44,7 @@ from frl.flower.messages import (
     record_to_arrays,
     request_content,
 )
+from frl.run_directory import relative_path
 
 log = logging.getLogger("frl.flower")
 
@@ -279,7 +279,7 @@ class FlowerClientPool:
                 raise ClientFailure(spec.name, "no vehicle left to upload the final model")
 
     def _relative(self, directory: Path) -> str:
-        return os.fspath(Path(directory).resolve().relative_to(self.run_dir.resolve()))
+        return relative_path(directory, self.run_dir)
 
 
 def write_model(spec: ClientSpec, arrays: Mapping[str, Any], path: Path) -> None:

@@ -84,7 +84,7 @@ def _simulate(
     from frl.flower.messages import PARTITION_KEY
     from frl.flower.server_app import run_roadside_unit
 
-    threads = settings.threads_per_worker or _default_threads(len(specs))
+    threads = settings.threads_per_worker or threads_per_worker(len(specs))
     outcome: dict[str, Any] = {}
     with contextlib.ExitStack() as stack:
         services = [
@@ -132,10 +132,6 @@ class _SimulatedEndpoints:
         return self.endpoints[int(context.node_config[self.key])]
 
 
-def _default_threads(num_clients: int) -> int:
-    return threads_per_worker(num_clients)
-
-
 # ------------------------------------------------------------------ deployment
 def _deploy(settings: TrainSettings, run_dir: Path) -> RunState:
     """Submit the run with ``flwr run`` and wait; a local federation if none is named."""
@@ -151,7 +147,7 @@ def _deploy(settings: TrainSettings, run_dir: Path) -> RunState:
                     state_dir=run_dir,
                     log_dir=logs,
                     num_threads=settings.threads_per_worker
-                    or _default_threads(len(settings.plan.client_tasks)),
+                    or threads_per_worker(len(settings.plan.client_tasks)),
                 )
             )
             address, env = federation.address, federation.env()

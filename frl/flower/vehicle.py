@@ -68,7 +68,6 @@ class VehicleEndpoint:
     """Hex text, so that it fits a Flower node config."""
 
 
-# ----------------------------------------------------------------- the vehicle's state
 # ----------------------------------------------------------------- the process
 class SocketVehicle:
     """A :class:`VehicleHost` answering frames on a Unix socket, one connection per request.
