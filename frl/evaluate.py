@@ -39,7 +39,7 @@ from frl.episodes import (
     summarize,
 )
 from frl.federation.plan import evaluation_seeds
-from frl.federation.workers import WorkerPool, threads_per_worker
+from frl.federation.workers import WorkerPool
 from frl.policies import YARDSTICK_LABELS, YARDSTICKS, make_yardstick
 
 MODEL = "model"
@@ -140,7 +140,7 @@ def evaluate_policies(
     ]
     with WorkerPool(
         clients,
-        num_threads=threads_per_worker(len(clients)),
+        num_threads=settings.worker_threads(len(clients)),
         timeout_s=settings.worker_timeout_s,
     ) as pool:
         for name in to_run:
@@ -326,9 +326,13 @@ def _label(name: str) -> str:
 
 
 def _run_settings(run_dir: Path) -> Any:
+    from frl.federation.workers import available_cores
     from frl.train_config import load_run_config, validate
 
-    return validate(load_run_config(run_dir))
+    config = load_run_config(run_dir)
+    if config.get("cores", 0) > available_cores():  # saved on a larger machine
+        config.cores = 0
+    return validate(config)
 
 
 def _first_line(error: BaseException) -> str:

@@ -4,11 +4,14 @@
     python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4   # more seeds for Figs. 4, 5
     python -m frl.reproduce --dry-run                  # print the commands only
     python -m frl.reproduce --export-only              # export finished runs, rebuild report
+    python -m frl.reproduce --jobs 2                   # two runs at a time, a core each
 
 Each figure is one Hydra multirun, ``python -m frl.train -m +experiment=figN``, whose
 preset (frl/conf/experiment/) fixes the sweep, a deterministic directory per job
 (``runs/repro/fig4/fedavg-seed0``) and ``resume=auto``: running the same command again
-skips finished jobs and continues a killed one from its last round. The preset's
+skips finished jobs and continues a killed one from its last round. With ``--jobs N``
+each job runs as its own one-job multirun, N at a time, each on its share of the cores
+(``cores=<cores // N>``, frl.side_by_side), its output in ``RUNS_DIR/logs/``. The preset's
 :class:`ExportRun` callback copies each finished run's small result files to
 ``docs/results/data/<figure>/<run>/`` as soon as it ends, and the report is built from
 those committed files. Ctrl-C stops the sweep; the next call picks up where it was.
@@ -31,6 +34,13 @@ from frl.fileio import read_json
 from frl.report.collect import FIGURE_DIRS
 from frl.report.runs import RunDataError, export_run, exported_results, is_finished
 from frl.run_directory import RESULTS_FILE
+from frl.side_by_side import (
+    cores_per_job,
+    expand_jobs,
+    run_side_by_side,
+    sweeper_params,
+    with_cores,
+)
 
 log = logging.getLogger("frl.reproduce")
 
@@ -98,6 +108,23 @@ def sweep_command(
     ]  # fmt: skip
 
 
+def job_commands(
+    sweep: str, seeds: str, runs_dir: Path, data_dir: Path, overrides: list[str], cores: int
+) -> list[tuple[str, list[str]]]:
+    """Each job of a figure's multirun as its own one-job multirun on ``cores`` cores,
+    with a label naming what varies between the jobs."""
+    base = sweep_command(sweep, seeds, runs_dir, data_dir, [])
+    jobs = expand_jobs(sweeper_params(sweep), [f"seed={seeds}", *overrides])
+    varying = [i for i in range(len(jobs[0])) if len({job[i] for job in jobs}) > 1]
+    return [
+        (
+            " ".join([sweep, *(job[i] for i in varying)]),
+            [*base[:5], *with_cores(job, cores), *base[6:]],
+        )
+        for job in jobs
+    ]
+
+
 def _parse_figures(text: str) -> list[str]:
     names = [name.strip() for name in text.split(",") if name.strip()]
     unknown = [name for name in names if name not in SWEEP_OF]
@@ -140,6 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--report", type=Path, default=Path("docs/results.md"),
                         help="markdown report built from --data-dir (%(default)s)")  # fmt: skip
     parser.add_argument("--no-report", action="store_true", help="skip building the report")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="runs at a time, each on its share of the cores "
+                        "(%(default)s)")  # fmt: skip
     parser.add_argument("--dry-run", action="store_true", help="print the commands and stop")
     parser.add_argument("--export-only", action="store_true",
                         help="run nothing: export finished runs, build the report")  # fmt: skip
@@ -150,6 +180,10 @@ def main(argv: list[str] | None = None) -> int:
         seeds = _parse_seeds(args.seeds)
     except ValueError as error:
         parser.error(str(error))
+    try:
+        cores = cores_per_job(args.jobs)
+    except ValueError as error:
+        parser.error(f"--jobs: {error}")
     if args.runs_dir.exists() and not args.runs_dir.is_dir():
         parser.error(f"--runs-dir {args.runs_dir} is not a directory")
     if not args.no_report and not args.dry_run:
@@ -160,8 +194,14 @@ def main(argv: list[str] | None = None) -> int:
         except MissingDependency as error:
             parser.error(f"{error} (or pass --no-report)")
 
-    commands = [sweep_command(s, seeds, args.runs_dir, args.data_dir, args.overrides)
-                for s in sweeps]  # fmt: skip
+    if args.jobs > 1:
+        labelled = [job for s in sweeps
+                    for job in job_commands(s, seeds, args.runs_dir, args.data_dir,
+                                            args.overrides, cores)]  # fmt: skip
+        commands = [command for _, command in labelled]
+    else:
+        commands = [sweep_command(s, seeds, args.runs_dir, args.data_dir, args.overrides)
+                    for s in sweeps]  # fmt: skip
     if args.dry_run:
         for command in commands:
             print(shlex.join(command))
@@ -169,7 +209,16 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="[frl.reproduce] %(message)s")
     env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
     status = 0
-    if not args.export_only:
+    if not args.export_only and args.jobs > 1:
+        outcomes = run_side_by_side(
+            commands, args.jobs, args.runs_dir / "logs", [label for label, _ in labelled], env
+        )
+        failed = [o for o in outcomes if o.returncode != 0]
+        for outcome in failed:
+            log.error("%s stopped with exit code %d (log: %s); rerun to continue",
+                      outcome.label, outcome.returncode, outcome.log_path)  # fmt: skip
+        status = failed[0].returncode if failed else 0
+    elif not args.export_only:
         for sweep, command in zip(sweeps, commands, strict=True):
             log.info("%s: %s", sweep, shlex.join(command))
             done = subprocess.run(command, env=env, check=False)

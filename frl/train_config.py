@@ -38,6 +38,7 @@ from frl.federation.plan import (
     client_seeds,
     initial_model_seed,
 )
+from frl.federation.workers import available_cores, threads_per_worker
 from frl.policies import YARDSTICKS
 from frl.run_directory import read_saved_config
 
@@ -137,7 +138,7 @@ FederationSchema = schema_of(
         ("worker_timeout_s", float, 3600.0),
         # Longest one worker call (a round of local training) may take before the run stops.
         ("threads_per_worker", int, 0),
-        # Torch threads per worker; 0: the available cores split evenly over the workers.
+        # Torch threads per worker; 0: the run's ``cores`` split evenly over the workers.
     ),
 )
 
@@ -162,6 +163,10 @@ class TrainSchema:
     """false; true (the newest unfinished run under outputs/, or run_dir); a run dir; or
     auto (the run in run_dir: continued if unfinished, skipped if finished, else started)."""
     device: str = "cpu"
+    cores: int = 0
+    """CPU cores the run may use: its worker processes split them evenly (torch threads,
+    at least one each); 0: every core available to the process. Runs side by side each
+    take their share, e.g. ``cores=1`` for two runs on two cores."""
     run_dir: Any = None
     """Where the run writes; null: Hydra's output directory."""
     env: EnvSchema = field(default_factory=EnvSchema)  # type: ignore[valid-type]
@@ -201,6 +206,13 @@ class TrainSettings:
     worker_timeout_s: float | None
     threads_per_worker: int | None
     flower: FlowerSettings = field(default_factory=FlowerSettings)
+    cores: int | None = None
+    """CPU cores of the run; None: every available core."""
+
+    def worker_threads(self, num_workers: int) -> int:
+        """Torch threads of each of ``num_workers`` processes: ``threads_per_worker`` if
+        set, else the run's cores split evenly (at least one each)."""
+        return self.threads_per_worker or threads_per_worker(num_workers, self.cores)
 
     def eval_env(self, task: str) -> EnvConfig:
         """The test environment of ``task``: the training traffic (Section IV.B)."""
@@ -266,6 +278,7 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
     threads = federation["threads_per_worker"]
     if threads < 0:
         raise ConfigError(f"federation.threads_per_worker must be >= 0, got {threads!r}")
+    cores = _check_cores(data["cores"])
     try:
         plan = FederationPlan(
             scheme=federation["scheme"],
@@ -303,7 +316,19 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         worker_timeout_s=timeout,
         threads_per_worker=threads or None,
         flower=flower,
+        cores=cores,
     )
+
+
+def _check_cores(cores: int) -> int | None:
+    """``cores`` as the run's core budget (None: all), or a ConfigError."""
+    available = available_cores()
+    if cores < 0:
+        raise ConfigError(f"cores must be >= 0 (0: all {available} available), got {cores!r}")
+    if cores > available:
+        # More threads than cores is the slowdown this setting exists to prevent.
+        raise ConfigError(f"cores={cores} exceeds the {available} cores available to this process")
+    return cores or None
 
 
 def _flower_settings(federation: dict[str, Any]) -> FlowerSettings:

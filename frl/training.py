@@ -29,8 +29,9 @@ log = logging.getLogger("frl.train")
 
 FINAL_REWARD_FRACTION = 0.1
 """``final_step_reward`` averages ``train/step_reward`` over this last share of the run."""
-_VOLATILE_KEYS = ("progress", "resume", "run_dir")
-"""Keys that may differ between a run and its resumption."""
+_VOLATILE_KEYS = ("progress", "resume", "run_dir", "cores")
+"""Keys that may differ between a run and its resumption; ``cores`` is the resuming
+machine's share, taken from the new config."""
 
 
 def train(
@@ -62,6 +63,7 @@ def train(
     if resuming:
         saved = load_run_config(run_dir)
         _warn_about_changes(saved, cfg)
+        saved.cores = _get(cfg, "cores", 0)
         settings = validate(saved)
         resolved: Any = saved
         log.info("resuming %s", run_dir)
@@ -126,7 +128,7 @@ def train_rounds(
         ) as logger,
         ProcessClientPool(
             specs,
-            num_threads=settings.threads_per_worker,
+            num_threads=settings.worker_threads(len(specs)),
             timeout_s=settings.worker_timeout_s,
             state_dir=run_dir,
         ) as pool,

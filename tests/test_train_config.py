@@ -9,6 +9,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf.errors import ValidationError
 from train_helpers import CONF_DIR, compose_config
 
+from frl.federation.workers import available_cores
 from frl.train import train
 from frl.train_config import ConfigError, validate
 
@@ -96,6 +97,8 @@ def test_the_shared_initial_model_depends_on_the_run_seed():
         (["env.max_episode_steps=0"], "max_episode_steps"),
         (["eval_episodes=-1"], "eval_episodes"),
         (["federation.initial_model=copied"], "initial_model must be one of shared, independent"),
+        (["cores=-1"], r"cores must be >= 0 \(0: all \d+ available\), got -1"),
+        ([f"cores={available_cores() + 1}"], r"exceeds the \d+ cores available"),
     ],
 )
 def test_bad_values_raise_config_error_before_any_process(overrides, message, tmp_path):
@@ -119,6 +122,24 @@ def test_typos_and_wrong_types_fail_while_composing(overrides, message):
     with pytest.raises((ConfigCompositionException, ValidationError)) as info:
         compose_config(None, overrides)
     assert re.search(message, f"{info.value} {info.value.__cause__}")
+
+
+@pytest.mark.parametrize(
+    ("overrides", "workers", "threads"),
+    [
+        (["cores=1"], 1, 1),  # Central-DDPG's one worker on a one-core share
+        (["cores=1"], 3, 1),  # never fewer than one thread a worker
+        (["cores=1", "federation.threads_per_worker=2"], 3, 2),  # explicit threads win
+    ],
+)
+def test_cores_split_over_a_runs_workers(overrides, workers, threads):
+    assert validate(compose_config(None, overrides)).worker_threads(workers) == threads
+
+
+def test_the_default_cores_are_every_available_core():
+    settings = validate(compose_config(None, []))
+    assert settings.cores is None
+    assert settings.worker_threads(1) == available_cores()
 
 
 def test_resume_needs_a_run(tmp_path):

@@ -129,12 +129,13 @@ def test_resume_after_a_kill_finishes_the_budget(tmp_path):
     assert state["completed_rounds"] == 2 and not state["training_finished"]
 
     rounds_seen = []
-    results = train(
-        compose_config(tmp_path / "run", [*overrides, "resume=true"]),
+    results = train(  # on another share of the cores: the resuming machine's
+        compose_config(tmp_path / "run", [*overrides, "resume=true", "cores=1"]),
         on_round_end=lambda s: rounds_seen.append(s.completed_rounds),
     )
 
     assert rounds_seen == [3]  # only the missing round ran
+    assert "cores: 1\n" in (tmp_path / "run" / "config.yaml").read_text()
     assert results["rounds"] == 3
     assert results["training"]["steps_per_client"] == 240
     assert results["communication"]["uploads"] == 2 * 3

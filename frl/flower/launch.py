@@ -31,7 +31,7 @@ from typing import Any
 
 from frl import run_directory as rundir
 from frl.federation.client import ClientSpec
-from frl.federation.workers import ClientFailure, stop_processes, threads_per_worker
+from frl.federation.workers import ClientFailure, stop_processes
 from frl.fileio import read_json
 from frl.flower.node import (
     VehicleNode,
@@ -84,7 +84,7 @@ def _simulate(
     from frl.flower.messages import PARTITION_KEY
     from frl.flower.server_app import run_roadside_unit
 
-    threads = settings.threads_per_worker or threads_per_worker(len(specs))
+    threads = settings.worker_threads(len(specs))
     outcome: dict[str, Any] = {}
     with contextlib.ExitStack() as stack:
         services = [
@@ -146,8 +146,7 @@ def _deploy(settings: TrainSettings, run_dir: Path) -> RunState:
                     len(settings.plan.client_tasks),
                     state_dir=run_dir,
                     log_dir=logs,
-                    num_threads=settings.threads_per_worker
-                    or threads_per_worker(len(settings.plan.client_tasks)),
+                    num_threads=settings.worker_threads(len(settings.plan.client_tasks)),
                 )
             )
             address, env = federation.address, federation.env()

@@ -186,17 +186,32 @@ def fig5(collection: Collection) -> dict[str, EvalSummary]:
     return {s: v for s, v in summaries.items() if v is not None}
 
 
-def fig5_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
-    """The yardsticks the ``fig4/`` runs were tested beside, over their distinct seeds.
+def yardsticks_of(runs: list[RunRecord]) -> dict[str, EvalSummary]:
+    """The yardsticks ``runs`` were tested beside, over their distinct seeds.
 
-    A yardstick's test depends on the seed and the traffic only, so every scheme of one
-    seed carries the same table; each seed counts once.
+    A yardstick's test depends on the seed and the traffic only, so every run of one
+    seed carries the same table; each seed counts once. (Its reward also depends on the
+    run's reward weights: give runs of one reward for reward figures.)
     """
     tables: dict[str, dict[int, dict[str, Any]]] = {}
-    for run in sorted(collection.of("fig4"), key=lambda r: (r.seed, r.scheme)):
+    for run in sorted(runs, key=lambda r: (r.seed, r.scheme)):
         for name, table in ((run.evaluation or {}).get("yardsticks") or {}).items():
             tables.setdefault(name, {}).setdefault(run.seed, table)
     return {name: _summary(by_seed) for name, by_seed in tables.items()}
+
+
+def fig5_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
+    """The yardsticks of the ``fig4/`` runs (their test return is Fig. 4's reference)."""
+    return yardsticks_of(collection.of("fig4"))
+
+
+def fig3_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
+    """The yardsticks of Fig. 3's runs, borrowed fig4/ runs included: their travel time
+    and collision rate (not their reward, which each run's weights score differently)."""
+    own = collection.of("fig3")
+    schemes = {r.scheme for r in own}
+    borrowed = [r for r in collection.of("fig4") if r.scheme in schemes and is_paper_reward(r)]
+    return yardsticks_of(own + borrowed)
 
 
 # --------------------------------------------------------------------- Fig. 6
@@ -216,7 +231,7 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
     fig6/ does not hold."""
     own = _group([r for r in collection.of("fig6") if r.scheme == "fedavg"], lambda r: r.interval)
     borrowed = _group(
-        [r for r in collection.of("fig4") if r.scheme == "fedavg" and _is_paper_reward(r)],
+        [r for r in collection.of("fig4") if r.scheme == "fedavg" and is_paper_reward(r)],
         lambda r: r.interval,
     )
     points = []
@@ -263,9 +278,9 @@ def fig3(collection: Collection) -> list[RewardPoint]:
     paper reward for that setting when fig3/ does not hold it."""
     own = collection.of("fig3")
     schemes = {r.scheme for r in own}
-    borrowed = [r for r in collection.of("fig4") if r.scheme in schemes and _is_paper_reward(r)]
-    own_groups = _group(own, _reward_key)
-    borrowed_groups = _group(borrowed, _reward_key)
+    borrowed = [r for r in collection.of("fig4") if r.scheme in schemes and is_paper_reward(r)]
+    own_groups = _group(own, reward_key)
+    borrowed_groups = _group(borrowed, reward_key)
     points = []
     keys = sorted(set(own_groups) | set(borrowed_groups), key=_fig3_order)
     for key in keys:
@@ -292,7 +307,7 @@ def _group(runs: list[RunRecord], key: Any) -> dict[Any, list[RunRecord]]:
     return groups
 
 
-def _reward_key(run: RunRecord) -> tuple[str, float, float]:
+def reward_key(run: RunRecord) -> tuple[str, float, float]:
     reward = run.reward
     return (
         str(reward.get("name", "paper")),
@@ -301,8 +316,8 @@ def _reward_key(run: RunRecord) -> tuple[str, float, float]:
     )
 
 
-def _is_paper_reward(run: RunRecord) -> bool:
-    return _reward_key(run) == (
+def is_paper_reward(run: RunRecord) -> bool:
+    return reward_key(run) == (
         PAPER_REWARD["name"],
         PAPER_REWARD["alpha"],
         PAPER_REWARD["lambda_"],

@@ -5,16 +5,24 @@ from __future__ import annotations
 import importlib.util
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 from frl.fileio import write_bytes_atomic
-from frl.report import aggregate, markdown, plots
+from frl.report import aggregate, claims, markdown, plots
 from frl.report.aggregate import CurveSettings
-from frl.report.collect import collect
+from frl.report.collect import Collection, collect
 
 log = logging.getLogger("frl.report")
 
 DEFAULT_OUT = Path("docs/results.md")
+PAPER_AGENT_DIR = "paper-agent"
+"""A reproduction root's optional second root, laid out like it, with Figs. 4 and 5
+trained on the paper's Table II agent (``agent=ddpg-paper``)::
+
+    python -m frl.reproduce --figures fig4 --runs-dir runs/repro/paper-agent \\
+        --data-dir docs/results/data/paper-agent -- agent=ddpg-paper
+"""
 
 
 class MissingDependency(RuntimeError):
@@ -54,28 +62,20 @@ def build_report(
         written[name] = path
         return plots.relative(path, out.parent)
 
-    curves = aggregate.fig4(collection, settings)
-    summaries = aggregate.fig5(collection)
-    yardsticks = aggregate.fig5_yardsticks(collection)
     intervals = aggregate.fig6(collection, settings)
     rewards = aggregate.fig3(collection)
+    fig3_yardsticks = aggregate.fig3_yardsticks(collection)
     blocks = {
+        "claims": markdown.claims_block(claims.all_claims(collection, settings)),
         "method": markdown.method_block(collection, settings),
         "fig3": markdown.fig3_block(
-            rewards, image("fig3", lambda p: plots.plot_fig3(rewards, p)) if rewards else None
-        ),
-        "fig4": markdown.fig4_block(
-            curves,
-            settings,
-            image("fig4", lambda p: plots.plot_fig4(curves, settings, p)) if curves else None,
-        ),
-        "fig5": markdown.fig5_block(
-            summaries,
-            image("fig5", lambda p: plots.plot_fig5(summaries, p, yardsticks))
-            if summaries
+            rewards,
+            image("fig3", lambda p: plots.plot_fig3(rewards, p, fig3_yardsticks))
+            if rewards
             else None,
-            yardsticks,
+            fig3_yardsticks,
         ),
+        **_fig4_fig5_blocks(collection, settings, image, suffix=""),
         "fig6": markdown.fig6_block(
             intervals,
             settings,
@@ -83,8 +83,46 @@ def build_report(
         ),
         "runs": markdown.runs_block(collection),
     }
+    paper_agent = collection.root / PAPER_AGENT_DIR
+    if paper_agent.is_dir():
+        table_ii = collect(paper_agent)
+        blocks.update(_fig4_fig5_blocks(table_ii, settings, image, suffix=f"-{PAPER_AGENT_DIR}"))
+        blocks[f"claims-{PAPER_AGENT_DIR}"] = markdown.claims_block(
+            claims.fig4_fig5_claims(table_ii.of("fig4"), settings)
+        )
+        blocks[f"runs-{PAPER_AGENT_DIR}"] = markdown.runs_block(table_ii)
     existing = out.read_text() if out.exists() else None
     write_bytes_atomic(out, markdown.merge(existing, blocks).encode())
     written["report"] = out
     log.info("wrote %s (%d runs)", out, collection.count)
     return written
+
+
+def _fig4_fig5_blocks(
+    collection: Collection,
+    settings: CurveSettings,
+    image: Callable[[str, Callable[[Path], Path]], str | None],
+    suffix: str,
+) -> dict[str, str]:
+    """Figs. 4 and 5 of one collection's ``fig4/`` runs, blocks and images named with
+    ``suffix``."""
+    curves = aggregate.fig4(collection, settings)
+    summaries = aggregate.fig5(collection)
+    yardsticks = aggregate.fig5_yardsticks(collection)
+    return {
+        f"fig4{suffix}": markdown.fig4_block(
+            curves,
+            settings,
+            image(f"fig4{suffix}", lambda p: plots.plot_fig4(curves, settings, p, yardsticks))
+            if curves
+            else None,
+            yardsticks,
+        ),
+        f"fig5{suffix}": markdown.fig5_block(
+            summaries,
+            image(f"fig5{suffix}", lambda p: plots.plot_fig5(summaries, p, yardsticks))
+            if summaries
+            else None,
+            yardsticks,
+        ),
+    }

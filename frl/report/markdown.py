@@ -25,12 +25,13 @@ from frl.report.aggregate import (
     RewardPoint,
     SchemeCurves,
 )
+from frl.report.claims import Claim
 from frl.report.collect import Collection
 from frl.report.runs import RunRecord
 from frl.report.stats import CONFIDENCE, Estimate
 
 NOT_RUN = "not run yet"
-BLOCKS: tuple[str, ...] = ("method", "fig3", "fig4", "fig5", "fig6", "runs")
+BLOCKS: tuple[str, ...] = ("claims", "method", "fig3", "fig4", "fig5", "fig6", "runs")
 PAPER_CROSSING = {"fedavg": 4593, "separate": 6068, "central": 9841}
 PAPER_SPEEDUP = {"separate": 32.11, "central": 114.26}
 PAPER_FINAL_GAIN = 21.00
@@ -46,6 +47,10 @@ hand-written and kept.
 ## Summary
 
 _Not written yet: what reproduced and what did not, from the tables below._
+
+## The paper's claims
+
+{claims}
 
 ## How the numbers were made
 
@@ -75,6 +80,16 @@ _Discussion not written yet._
 
 _Discussion not written yet._
 
+## Figs. 4 and 5 with the paper's agent (Table II)
+
+{claims-paper-agent}
+
+{fig4-paper-agent}
+
+{fig5-paper-agent}
+
+{runs-paper-agent}
+
 ## Runs
 
 {runs}
@@ -88,7 +103,10 @@ def block(name: str, body: str) -> str:
 def merge(existing: str | None, blocks: dict[str, str]) -> str:
     """``existing`` with its generated blocks replaced (the template if None)."""
     if existing is None:
-        return TEMPLATE.format(**{name: block(name, body) for name, body in blocks.items()})
+        names = re.findall(r"\{([\w-]+)\}", TEMPLATE)
+        existing = TEMPLATE
+        for name in names:
+            existing = existing.replace(f"{{{name}}}", block(name, f"_{NOT_RUN}_"))
     text = existing
     for name, body in blocks.items():
         begin, end = (re.escape(f"<!-- frl.report:{m} {name} -->") for m in ("begin", "end"))
@@ -144,6 +162,24 @@ def _image(path: str | None, alt: str) -> str:
 
 
 # ------------------------------------------------------------------- blocks
+def claims_block(claims: list[Claim]) -> str:
+    """One row per claim of the paper: ours, the paper's, the verdict."""
+    rows = []
+    for c in claims:
+        percent = c.unit == "pp"
+        ours = fmt(c.ours, 1 if percent or c.unit == " steps" else 2, percent=percent)
+        ours = ours.replace("%", " pp") if percent else ours + (c.unit if c.ours else "")
+        rows.append([c.figure, c.claim, c.paper, c.measure, ours, c.verdict])
+    header = ["Fig.", "claim", "paper", "our measure (paired over seeds)", "ours: mean ± 95% CI",
+              "verdict"]  # fmt: skip
+    return (
+        table(header, rows)
+        + "\n\nEach difference is taken seed by seed (the runs of one seed share its "
+        "traffic), then averaged with a 95% t interval over the seeds. Significant: the "
+        "interval excludes zero. The paper tests one run per setting and gives no intervals."
+    )
+
+
 def method_block(collection: Collection, settings: CurveSettings) -> str:
     level = f"{CONFIDENCE:.0%}"
     return f"""- Source: `{collection.root}`, {collection.count} finished run(s); the runs
@@ -169,7 +205,27 @@ def method_block(collection: Collection, settings: CurveSettings) -> str:
   with Fig. 4's runs; Fig. 6's interval {PAPER_INTERVAL} is Fig. 4's FedAvg runs."""
 
 
-def fig4_block(curves: dict[str, SchemeCurves], settings: CurveSettings, image: str | None) -> str:
+def yardstick_returns(yardsticks: dict[str, EvalSummary] | None) -> str:
+    """A sentence giving each yardstick's average test return (Fig. 4's reference lines)."""
+    parts = [
+        f"{name.replace('_', ' ')} {fmt(summary.metrics.get('average', {}).get('average_reward'))}"
+        for name, summary in (yardsticks or {}).items()
+    ]
+    if not parts:
+        return ""
+    return (
+        "\n\nReference lines: the yardsticks' test return, averaged over the tasks, on the "
+        f"same seeds: {', '.join(parts)}. A training curve is measured with exploration "
+        "noise on, so it sits somewhat below what the same agent scores in its test."
+    )
+
+
+def fig4_block(
+    curves: dict[str, SchemeCurves],
+    settings: CurveSettings,
+    image: str | None,
+    yardsticks: dict[str, EvalSummary] | None = None,
+) -> str:
     if not curves:
         return f"_{NOT_RUN}_ (needs `fig4/` runs: `python -m frl.reproduce --figures fig4`)."
     threshold = f"{settings.threshold:g}"
@@ -244,7 +300,7 @@ def fig4_block(curves: dict[str, SchemeCurves], settings: CurveSettings, image: 
     text += table(
         ["baseline", "speed-up (ours)", "paper", "final-reward gain (ours)", "paper"], comparisons
     )
-    return text
+    return text + yardstick_returns(yardsticks)
 
 
 def fig5_block(
@@ -339,7 +395,11 @@ def fig6_block(points: list[IntervalPoint], settings: CurveSettings, image: str 
     return text
 
 
-def fig3_block(points: list[RewardPoint], image: str | None) -> str:
+def fig3_block(
+    points: list[RewardPoint],
+    image: str | None,
+    yardsticks: dict[str, EvalSummary] | None = None,
+) -> str:
     if not points:
         return f"_{NOT_RUN}_ (needs `fig3/` runs)."
     paper = {
@@ -368,6 +428,19 @@ def fig3_block(points: list[RewardPoint], image: str | None) -> str:
                 fmt(m.get("average_travel_time"), 2),
                 fmt(m.get("collision_rate"), 1, percent=True),
                 paper.get(key, "–"),
+            ]
+        )
+    for name, summary in (yardsticks or {}).items():
+        m = summary.metrics.get("average", {})
+        rows.append(
+            [
+                f"{name.replace('_', ' ')} (yardstick)",
+                "–",
+                _seeds(summary.seeds),
+                fmt(m.get("average_episode_steps"), 2),
+                fmt(m.get("average_travel_time"), 2),
+                fmt(m.get("collision_rate"), 1, percent=True),
+                "–",
             ]
         )
     text = _image(image, "Fig. 3") + table(

@@ -54,8 +54,24 @@ def _val(estimate: Estimate | None) -> float:
     return estimate.mean if estimate else np.nan
 
 
-def plot_fig4(curves: dict[str, SchemeCurves], settings: CurveSettings, path: Path) -> Path:
-    """Average training reward per scheme, mean and 95% band over seeds."""
+def _yardstick_lines(axis, yardsticks: dict[str, EvalSummary] | None, metric: str) -> None:  # type: ignore[no-untyped-def]
+    """Each yardstick's test average over tasks and seeds as a horizontal line."""
+    for name, summary in (yardsticks or {}).items():
+        value = _val(summary.metrics.get("average", {}).get(metric))
+        if np.isfinite(value):
+            style = YARDSTICK_STYLES.get(name, {"color": "black", "linestyle": ":"})
+            label = f"{name.replace('_', ' ')}, tested (n={len(summary.seeds)})"
+            axis.axhline(value, linewidth=1.2, label=label, **style)
+
+
+def plot_fig4(
+    curves: dict[str, SchemeCurves],
+    settings: CurveSettings,
+    path: Path,
+    yardsticks: dict[str, EvalSummary] | None = None,
+) -> Path:
+    """Average training reward per scheme, mean and 95% band over seeds; each yardstick's
+    average test return (same seeds) as a reference line."""
     plt = _pyplot()
     figure, (left, right) = plt.subplots(1, 2, figsize=(12, 4.2))
     for scheme, c in curves.items():
@@ -70,6 +86,7 @@ def plot_fig4(curves: dict[str, SchemeCurves], settings: CurveSettings, path: Pa
                     c.steps, mean - half, mean + half, color=COLORS[scheme], alpha=0.2
                 )
     left.axhline(settings.threshold, color="gray", linestyle="--", linewidth=0.8)
+    _yardstick_lines(left, yardsticks, "average_reward")
     left.set(
         xlabel="training step (per agent)",
         ylabel=f"average reward (last {settings.episode_window} episodes' return)",
@@ -188,8 +205,11 @@ def plot_fig6(points: list[IntervalPoint], settings: CurveSettings, path: Path) 
     return _save(figure, path)
 
 
-def plot_fig3(points: list[RewardPoint], path: Path) -> Path:
-    """Test travel time and collision rate per reward setting, with 95% CIs."""
+def plot_fig3(
+    points: list[RewardPoint], path: Path, yardsticks: dict[str, EvalSummary] | None = None
+) -> Path:
+    """Test travel time and collision rate per reward setting, with 95% CIs; each
+    yardstick (same seeds and traffic) as a horizontal mark."""
     plt = _pyplot()
     figure, axes = plt.subplots(1, 2, figsize=(12, 4))
     labels = [f"{p.label}\n(n={len(p.seeds)})" for p in points]
@@ -208,9 +228,12 @@ def plot_fig3(points: list[RewardPoint], path: Path) -> Path:
             capsize=3,
             color="tab:cyan",
         )
+        _yardstick_lines(axis, yardsticks, metric)
         axis.set_xticks(x, labels, fontsize=8)
         axis.set_title(title)
         axis.grid(axis="y", alpha=0.3)
+    if yardsticks:
+        axes[1].legend(loc="upper right", fontsize=8)
     figure.suptitle("Fig. 3: reward tuning, test average over tasks, mean and 95% CI")
     return _save(figure, path)
 

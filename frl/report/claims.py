@@ -1,0 +1,251 @@
+"""The paper's claims, one row each: our estimate, the paper's number, and a verdict.
+
+Every comparison is paired over seeds: the schemes of one seed train and test on the
+same seeds' traffic, so the difference per seed is the measurement, and its mean gets a
+95% t interval over seeds (frl.report.stats). A difference is *significant* when that
+interval excludes zero. With three seeds the t quantile is 4.30, so only large, steady
+differences are.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from frl.report.aggregate import (
+    PAPER_INTERVAL,
+    SCHEME_LABELS,
+    CurveSettings,
+    is_paper_reward,
+    reward_curve,
+    reward_key,
+)
+from frl.report.collect import Collection
+from frl.report.runs import RunRecord
+from frl.report.stats import Estimate, first_crossing, mean_ci
+
+PerSeed = dict[int, float]
+Metric = Callable[[RunRecord], float | None]
+
+
+@dataclass(frozen=True)
+class Claim:
+    figure: str
+    claim: str
+    """The paper's claim."""
+    paper: str
+    """The paper's number for it, if it gives one."""
+    measure: str
+    """What we compare, as ``A - B`` per seed."""
+    ours: Estimate | None
+    """Mean difference and its interval; None: not run."""
+    expected_sign: int
+    """+1 if the claim says ``A - B > 0``, -1 if ``< 0``."""
+    unit: str = ""
+    """``pp``: a difference of rates, shown in percentage points."""
+    note: str = ""
+    settled: str | None = None
+    """A verdict that is no comparison (a threshold reached at k of n seeds)."""
+
+    @property
+    def verdict(self) -> str:
+        return self.settled or verdict(self.ours, self.expected_sign)
+
+
+def verdict(difference: Estimate | None, expected_sign: int) -> str:
+    """``holds``, ``opposite``, ``not significant`` or why there is no verdict."""
+    if difference is None or not math.isfinite(difference.mean):
+        return "not run"
+    if difference.half_width is None:
+        return "one seed: no interval"
+    same = difference.mean * expected_sign > 0
+    assert difference.low is not None and difference.high is not None
+    significant = difference.low > 0 or difference.high < 0
+    if significant:
+        return "holds (significant)" if same else "opposite (significant)"
+    return "same direction, not significant" if same else "opposite direction, not significant"
+
+
+def per_seed(runs: list[RunRecord], metric: Metric) -> PerSeed:
+    values = {run.seed: metric(run) for run in runs}
+    return {seed: float(v) for seed, v in values.items() if v is not None and math.isfinite(v)}
+
+
+def paired(a: PerSeed, b: PerSeed) -> Estimate | None:
+    """Mean and 95% interval of ``a - b`` over the seeds both hold; None if none."""
+    seeds = sorted(set(a) & set(b))
+    return mean_ci([a[s] - b[s] for s in seeds]) if seeds else None
+
+
+# ------------------------------------------------------------------ metrics
+def test_metric(name: str, task: str = "average") -> Metric:
+    def read(run: RunRecord) -> float | None:
+        table = run.evaluation or {}
+        row = table.get("average") if task == "average" else table.get("per_task", {}).get(task)
+        return None if row is None else row.get(name)
+
+    return read
+
+
+def yardstick_metric(yardstick: str, name: str) -> Metric:
+    def read(run: RunRecord) -> float | None:
+        table = ((run.evaluation or {}).get("yardsticks") or {}).get(yardstick) or {}
+        return (table.get("average") or {}).get(name)
+
+    return read
+
+
+def final_training_reward(settings: CurveSettings) -> Metric:
+    return lambda run: float(reward_curve(run, settings.episode_window)[-1])
+
+
+def mean_training_reward(settings: CurveSettings) -> Metric:
+    """The Fig. 4 curve averaged over the steps after the warm-up: higher is faster."""
+
+    def read(run: RunRecord) -> float | None:
+        curve = reward_curve(run, settings.episode_window)[run.learning_starts :]
+        return float(np.nanmean(curve)) if np.isfinite(curve).any() else None
+
+    return read
+
+
+def crossing_step(settings: CurveSettings) -> Metric:
+    def read(run: RunRecord) -> float | None:
+        curve = reward_curve(run, settings.episode_window)
+        step = first_crossing(curve, settings.threshold, after=run.learning_starts)
+        return None if step is None else float(step)
+
+    return read
+
+
+# ------------------------------------------------------------------- claims
+def fig4_fig5_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Claim]:
+    """Figs. 4 and 5: FedAvg-DDPG against each baseline, and against full throttle."""
+    by_scheme: dict[str, list[RunRecord]] = {}
+    for run in runs:
+        by_scheme.setdefault(run.scheme, []).append(run)
+
+    def of(scheme: str, metric: Metric) -> PerSeed:
+        return per_seed(by_scheme.get(scheme, []), metric)
+
+    def diff(metric: Metric, a: str, b: str) -> Estimate | None:
+        return paired(of(a, metric), of(b, metric))
+
+    fed = SCHEME_LABELS["fedavg"]
+    claims = []
+    crossing = crossing_step(settings)
+    crossed = per_seed(by_scheme.get("fedavg", []), crossing)
+    seeds = len(by_scheme.get("fedavg", []))
+    claims.append(
+        Claim(
+            "4",
+            f"{fed} reaches the benchmark training reward {settings.threshold:g}",
+            "step 4,593",
+            f"first step at or above {settings.threshold:g}, over the seeds that reach it",
+            mean_ci(list(crossed.values())) if crossed else None,
+            +1,
+            unit=" steps",
+            settled=(f"reached at {len(crossed)} of {seeds} seeds" if seeds else "not run"),
+        )
+    )
+    for other, speed in (("separate", "32.11"), ("central", "114.26")):
+        label = SCHEME_LABELS[other]
+        claims += [
+            Claim("4", f"{fed} converges faster than {label}",
+                  f"{label} needs {speed}% more steps to reach {settings.threshold:g}",
+                  f"mean training reward after the warm-up, {fed} - {label}",
+                  diff(mean_training_reward(settings), "fedavg", other), +1),
+            Claim("4", f"{fed} ends with a higher training reward than {label}", "+21.00%",
+                  f"final training reward, {fed} - {label}",
+                  diff(final_training_reward(settings), "fedavg", other), +1),
+        ]  # fmt: skip
+    test_reward, collisions = test_metric("average_reward"), test_metric("collision_rate")
+    sep, central = SCHEME_LABELS["separate"], SCHEME_LABELS["central"]
+    claims += [
+        Claim("5", f"{fed} tests better than {sep}", "bars only", f"test reward, {fed} - {sep}",
+              diff(test_reward, "fedavg", "separate"), +1),
+        Claim("5", f"{fed} markedly lowers collisions against {sep}", "bars only",
+              f"collision rate, {fed} - {sep}", diff(collisions, "fedavg", "separate"), -1, "pp"),
+    ]  # fmt: skip
+    for task in ("left", "straight", "right"):
+        claims.append(
+            Claim("5", f"... on every task: {task}", "bars only",
+                  f"collision rate ({task}), {fed} - {sep}",
+                  diff(test_metric("collision_rate", task), "fedavg", "separate"), -1, "pp")
+        )  # fmt: skip
+    for other in ("separate", "fedavg"):
+        label = SCHEME_LABELS[other]
+        claims += [
+            Claim("5", f"{central} tests worst: below {label}", "bars only",
+                  f"test reward, {central} - {label}", diff(test_reward, "central", other), -1),
+            Claim("5", f"{central} collides most: more than {label}", "bars only",
+                  f"collision rate, {central} - {label}", diff(collisions, "central", other),
+                  +1, "pp"),
+        ]  # fmt: skip
+    blind = of("fedavg", yardstick_metric("full_throttle", "average_reward"))
+    blind_collisions = of("fedavg", yardstick_metric("full_throttle", "collision_rate"))
+    claims += [
+        Claim("frl", f"{fed} tests better than full throttle", "not a claim of the paper",
+              f"test reward, {fed} - full throttle, same seeds",
+              paired(of("fedavg", test_reward), blind), +1),
+        Claim("frl", f"{fed} collides less than full throttle", "not a claim of the paper",
+              f"collision rate, {fed} - full throttle, same seeds",
+              paired(of("fedavg", collisions), blind_collisions), -1,
+              "pp"),
+    ]  # fmt: skip
+    return claims
+
+
+def fig6_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Claim]:
+    """Fig. 6: interval 2,000 is the best, against the best other interval."""
+    final = final_training_reward(settings)
+    by_interval: dict[int, PerSeed] = {}
+    for run in runs:
+        if run.scheme == "fedavg":
+            by_interval.setdefault(run.interval, {}).update(per_seed([run], final))
+    others = {i: v for i, v in by_interval.items() if i != PAPER_INTERVAL and v}
+    paper = by_interval.get(PAPER_INTERVAL)
+    if not others or not paper:
+        estimate, note = None, ""
+    else:
+        best = max(others, key=lambda i: float(np.mean(list(others[i].values()))))
+        estimate = paired(paper, others[best])
+        note = f"best other interval: {best:,}"
+    return [
+        Claim("6", f"aggregating every {PAPER_INTERVAL:,} steps is best, the curve biphasic",
+              "6.84 at 2,000", f"final training reward, interval {PAPER_INTERVAL:,} - the best "
+              "other interval", estimate, +1, note=note),
+    ]  # fmt: skip
+
+
+def fig3_claims(balanced: list[RunRecord], reference: list[RunRecord]) -> list[Claim]:
+    """Fig. 3: alpha -0.05, lambda -10 against the reference reward."""
+    steps, collisions = test_metric("average_episode_steps"), test_metric("collision_rate")
+    return [  # the paper's "travel time" counts every episode to its end
+        Claim("3", "α=-0.05, λ=-10 drives faster than the reference reward", "-6.49%",
+              "travel time (all episodes, steps), α=-0.05, λ=-10 - reference",
+              paired(per_seed(balanced, steps), per_seed(reference, steps)), -1, " steps"),
+        Claim("3", "... at slightly more collisions", "+1 pp",
+              "collision rate, α=-0.05, λ=-10 - reference",
+              paired(per_seed(balanced, collisions), per_seed(reference, collisions)), +1, "pp"),
+    ]  # fmt: skip
+
+
+def all_claims(collection: Collection, settings: CurveSettings) -> list[Claim]:
+    """Every claim the runs of ``collection`` can test (rows marked not run otherwise)."""
+    fig4_runs = collection.of("fig4")
+    fig6_runs = collection.of("fig6") + [
+        r for r in fig4_runs if r.scheme == "fedavg" and is_paper_reward(r)
+    ]
+    fig3_runs = collection.of("fig3")
+    tuned_scheme = {r.scheme for r in fig3_runs}
+    balanced = [r for r in fig4_runs if r.scheme in tuned_scheme and is_paper_reward(r)]
+    reference = [r for r in fig3_runs if reward_key(r)[0] == "reference"]
+    return [
+        *fig3_claims(balanced, reference),
+        *fig4_fig5_claims(fig4_runs, settings),
+        *fig6_claims(fig6_runs, settings),
+    ]

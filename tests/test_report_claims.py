@@ -1,0 +1,102 @@
+"""The claims table: paired differences over seeds, their verdicts, and the report's
+claims, yardstick and Table II blocks, on synthetic runs with hand-computed numbers."""
+
+import math
+
+import pytest
+from report_helpers import evaluation, make_run
+
+from frl.report.aggregate import CurveSettings
+from frl.report.build import build_report
+from frl.report.claims import fig4_fig5_claims, paired, verdict
+from frl.report.runs import load_run
+from frl.report.stats import Estimate
+
+SETTINGS = CurveSettings(episode_window=2, step_window=3, threshold=6.0)
+T2 = 4.302653  # t(0.975, 2)
+
+
+@pytest.mark.parametrize(
+    ("estimate", "sign", "expected"),
+    [
+        (Estimate(2.0, 1.0, 3), +1, "holds (significant)"),
+        (Estimate(-2.0, 1.0, 3), +1, "opposite (significant)"),
+        (Estimate(-2.0, 1.0, 3), -1, "holds (significant)"),
+        (Estimate(0.5, 1.0, 3), +1, "same direction, not significant"),
+        (Estimate(-0.5, 1.0, 3), +1, "opposite direction, not significant"),
+        (Estimate(0.5, None, 1), +1, "one seed: no interval"),
+        (None, +1, "not run"),
+    ],
+)
+def test_a_verdict_needs_an_interval_that_excludes_zero(estimate, sign, expected):
+    assert verdict(estimate, sign) == expected
+
+
+def test_differences_are_paired_over_the_seeds_both_hold():
+    difference = paired({0: 1.0, 1: 3.0, 2: 5.0}, {0: 0.0, 1: 1.0, 2: 2.0, 3: 9.0})
+    assert difference is not None
+    assert difference.n == 3 and difference.mean == pytest.approx(2.0)
+    assert difference.half_width == pytest.approx(T2 * 1.0 / math.sqrt(3), rel=1e-5)
+    assert paired({0: 1.0}, {1: 1.0}) is None
+
+
+def _with_yardstick(table: dict, reward: float, collisions: float) -> dict:
+    blind = evaluation(reward, collisions, 30.0)
+    return {**table, "yardsticks": {"full_throttle": blind, "oracle": evaluation(6.5, 0, 44)}}
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    """fig4: FedAvg tests 3, 3.5 and 4 above Sep-DDPG at seeds 0-2 and collides 5 pp less
+    at each; Central-DDPG at seed 0 only. Full throttle scores 3.0 and collides 20%."""
+    root = tmp_path_factory.mktemp("claims")
+    for seed in (0, 1, 2):
+        sep = _with_yardstick(evaluation(4.0, 0.15, 40.0), 3.0, 0.2)
+        fed = _with_yardstick(evaluation(7.0 + seed / 2, 0.1, 40.0), 3.0, 0.2)
+        make_run(root / "fig4" / f"separate-seed{seed}", "separate", seed, evaluation=sep)
+        make_run(root / "fig4" / f"fedavg-seed{seed}", "fedavg", seed, evaluation=fed)
+    make_run(root / "fig4" / "central-seed0", "central", 0, evaluation=evaluation(1.0, 0.3, 40.0))
+    return root
+
+
+def test_each_claim_gets_our_paired_estimate_and_verdict(root):
+    runs = [load_run(p) for p in sorted((root / "fig4").iterdir())]
+    claims = {c.measure: c for c in fig4_fig5_claims(runs, SETTINGS)}
+
+    better = claims["test reward, FedAvg-DDPG - Sep-DDPG"]
+    assert better.ours.mean == pytest.approx(3.5)
+    assert better.ours.half_width == pytest.approx(T2 * 0.5 / math.sqrt(3), rel=1e-5)
+    assert better.verdict == "holds (significant)"
+    fewer = claims["collision rate, FedAvg-DDPG - Sep-DDPG"]
+    assert fewer.ours.mean == pytest.approx(-0.05) and fewer.ours.half_width == pytest.approx(0)
+    assert fewer.verdict == "holds (significant)"
+    assert claims["test reward, Central-DDPG - Sep-DDPG"].verdict == "one seed: no interval"
+    blind = claims["test reward, FedAvg-DDPG - full throttle, same seeds"]
+    assert blind.ours.mean == pytest.approx(4.5) and blind.verdict == "holds (significant)"
+    # Training returns of the helper's runs end at 7 for every scheme: no difference.
+    same = claims["final training reward, FedAvg-DDPG - Sep-DDPG"]
+    assert same.ours.mean == 0 and same.verdict == "opposite direction, not significant"
+    reached = claims["first step at or above 6, over the seeds that reach it"]
+    assert reached.verdict == "reached at 3 of 3 seeds" and reached.ours.mean == 20
+
+
+def test_the_report_tabulates_claims_draws_yardsticks_and_the_table_ii_agent(root, tmp_path):
+    table_ii = root / "paper-agent" / "fig4" / "fedavg-seed0"
+    make_run(table_ii, "fedavg", 0, evaluation=_with_yardstick(evaluation(2.5, 0.3, 40), 3.0, 0.2))
+    out = tmp_path / "results.md"
+
+    written = build_report(root, out, settings=SETTINGS)
+
+    text = out.read_text()
+    assert (
+        f"| 5 | FedAvg-DDPG tests better than Sep-DDPG | bars only | test reward, FedAvg-DDPG - "
+        f"Sep-DDPG | 3.50 ± {T2 * 0.5 / math.sqrt(3):.2f} | holds (significant) |" in text
+    )
+    assert "| -5.0 ± 0.0 pp | holds (significant) |" in text
+    assert "| 3 | α=-0.05, λ=-10 drives faster than the reference reward | -6.49% |" in text
+    assert "Reference lines: the yardsticks' test return" in text
+    assert "full throttle 3.00 ± 0.00, oracle 6.50 ± 0.00" in text
+    for name in ("fig4-paper-agent", "fig5-paper-agent"):
+        assert written[name].exists() and f"<!-- frl.report:begin {name} -->" in text
+    assert "<!-- frl.report:begin claims-paper-agent -->" in text
+    assert "| FedAvg-DDPG | left | 1 | 2.50 (n=1) |" in text

@@ -1,0 +1,86 @@
+"""Multirun jobs side by side: the job list Hydra would run, the cores each gets, and a
+runner that keeps at most N going, logs each and survives a failed one."""
+
+import sys
+import time
+
+import pytest
+
+from frl import reproduce
+from frl.side_by_side import (
+    cores_per_job,
+    expand_jobs,
+    run_side_by_side,
+    sweeper_params,
+    with_cores,
+)
+
+
+def test_the_jobs_are_hydras_product_with_the_command_line_winning():
+    params = {"seed": "0,1,2", "federation": "fedavg,separate"}
+    jobs = expand_jobs(params, ["seed=5,6", "agent=ddpg-paper", "+foo=[a,b]"])
+    assert jobs == [
+        ["seed=5", "federation=fedavg", "agent=ddpg-paper", "+foo=[a,b]"],
+        ["seed=5", "federation=separate", "agent=ddpg-paper", "+foo=[a,b]"],
+        ["seed=6", "federation=fedavg", "agent=ddpg-paper", "+foo=[a,b]"],
+        ["seed=6", "federation=separate", "agent=ddpg-paper", "+foo=[a,b]"],
+    ]
+
+
+def test_a_presets_sweep_is_read_from_its_config():
+    assert sweeper_params("fig6") == {"seed": "0,1,2", "interval": "250,500,1000,2500,5000,10000"}
+
+
+def test_the_cores_are_shared_and_never_overbooked():
+    assert cores_per_job(2, cores=2) == 1
+    assert cores_per_job(3, cores=16) == 5
+    with pytest.raises(ValueError, match="3 jobs side by side need at least 3 cores; 2"):
+        cores_per_job(3, cores=2)
+    with pytest.raises(ValueError, match="jobs must be >= 1"):
+        cores_per_job(0, cores=2)
+    assert with_cores(["seed=0"], 1) == ["seed=0", "cores=1"]
+    assert with_cores(["cores=2", "seed=0"], 1) == ["cores=2", "seed=0"]
+
+
+def _sleeper(tmp_path, name: str, code: int = 0) -> list[str]:
+    script = (
+        "import sys, time, pathlib; d = pathlib.Path(sys.argv[1]);"
+        f"(d / '{name}.start').write_text(str(time.time())); time.sleep(1.5);"
+        f"(d / '{name}.end').write_text(str(time.time())); print('{name} done');"
+        f"sys.exit({code})"
+    )
+    return [sys.executable, "-c", script, str(tmp_path)]
+
+
+def test_at_most_n_run_at_once_and_a_failure_stops_none(tmp_path):
+    names = ["a", "b", "c", "d"]
+    commands = [_sleeper(tmp_path, n, code=3 if n == "b" else 0) for n in names]
+    began = time.time()
+    outcomes = run_side_by_side(commands, 2, tmp_path / "logs", names)
+    assert sorted((o.label, o.returncode) for o in outcomes) == [
+        ("a", 0), ("b", 3), ("c", 0), ("d", 0)
+    ]  # fmt: skip
+    spans = [
+        (float((tmp_path / f"{n}.start").read_text()), float((tmp_path / f"{n}.end").read_text()))
+        for n in names
+    ]
+    for moment in [start + 0.1 for start, _ in spans]:  # never three at once
+        assert sum(start <= moment <= end for start, end in spans) <= 2
+    assert time.time() - began < 4 * 1.5  # two at a time, not one after another
+    assert (tmp_path / "logs" / "c.log").read_text().strip() == "c done"
+
+
+def test_reproduce_gives_each_job_its_own_multirun_and_share(capsys):
+    assert reproduce.main(["--jobs", "2", "--dry-run", "--figures", "fig4", "--seeds", "0,1",
+                           "--", "agent=ddpg-paper"]) == 0  # fmt: skip
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 6
+    assert "-m +experiment=fig4 seed=1 federation=separate agent=ddpg-paper cores=1" in lines[4]
+    assert all("hydra.sweep.dir=runs/repro/fig4" in line for line in lines)
+
+
+def test_reproduce_refuses_more_jobs_than_cores(capsys):
+    with pytest.raises(SystemExit) as info:
+        reproduce.main(["--jobs", "64", "--dry-run"])
+    assert info.value.code == 2
+    assert "--jobs: 64 jobs side by side need at least 64 cores" in capsys.readouterr().err
