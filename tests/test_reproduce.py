@@ -118,3 +118,25 @@ def test_reproduce_runs_a_preset_sweep_exports_and_reports(tmp_path):
     assert json.loads((data / "results.json").read_text()) == json.loads(
         (run_dir / "results.json").read_text()
     )
+
+
+def test_reproduce_runs_jobs_side_by_side_each_on_its_share(tmp_path):
+    overrides = [o for o in TINY_OVERRIDES if not o.startswith("progress")]
+    command = [
+        sys.executable, "-m", "frl.reproduce", "--jobs", "2", "--figures", "fig4",
+        "--seeds", "0,1", "--runs-dir", str(tmp_path / "runs"), "--data-dir",
+        str(tmp_path / "data"), "--no-report", "--", "federation=central",
+        "federation.tasks=[left]", *overrides, "total_steps=160", "eval_episodes=0",
+    ]  # fmt: skip
+    repo = Path(__file__).resolve().parents[1]
+    done = subprocess.run(command, cwd=repo, capture_output=True, text=True, timeout=300)
+
+    assert done.returncode == 0, done.stderr[-3000:]
+    for seed in (0, 1):
+        run_dir = tmp_path / "runs" / "fig4" / f"central-seed{seed}"
+        assert is_finished(run_dir)
+        assert "cores: 1\n" in (run_dir / "config.yaml").read_text()
+        assert (tmp_path / "data" / "fig4" / f"central-seed{seed}" / "results.json").exists()
+    logs = sorted(p.name for p in (tmp_path / "runs" / "logs").iterdir())
+    assert logs == ["fig4_seed=0.log", "fig4_seed=1.log"]
+    assert "finished" in done.stderr and "started fig4 seed=1" in done.stderr

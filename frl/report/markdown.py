@@ -169,7 +169,8 @@ def claims_block(claims: list[Claim]) -> str:
         percent = c.unit == "pp"
         ours = fmt(c.ours, 1 if percent or c.unit == " steps" else 2, percent=percent)
         ours = ours.replace("%", " pp") if percent else ours + (c.unit if c.ours else "")
-        rows.append([c.figure, c.claim, c.paper, c.measure, ours, c.verdict])
+        measure = f"{c.measure} ({c.note})" if c.note else c.measure
+        rows.append([c.figure, c.claim, c.paper, measure, ours, c.verdict])
     header = ["Fig.", "claim", "paper", "our measure (paired over seeds)", "ours: mean ± 95% CI",
               "verdict"]  # fmt: skip
     return (
