@@ -214,12 +214,17 @@ def is_resumable(run_dir: Path) -> bool:
 def is_finished(run_dir: Path) -> bool:
     """Training and any configured evaluation of the run in ``run_dir`` are done."""
     state = read_state(run_dir)
-    return (
-        state is not None
-        and state.training_finished
-        and (Path(run_dir) / RESULTS_FILE).exists()
-        and not is_resumable(run_dir)
+    if state is None or not state.training_finished or is_resumable(run_dir):
+        return False
+    results = read_results(run_dir)
+    if results is None:
+        return False
+    # A test that failed or was stopped leaves results without "evaluation": resuming
+    # the run tests it then, without training again.
+    tests = (Path(run_dir) / CONFIG_FILE).is_file() and read_saved_config(run_dir).get(
+        "eval_episodes", 0
     )
+    return "evaluation" in results or not tests
 
 
 def newest_resumable(roots: Iterable[str | Path], exclude: Path | None = None) -> Path | None:

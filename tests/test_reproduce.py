@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from train_helpers import TINY_OVERRIDES, compose_config
 
+from frl import run_directory as rundir
 from frl.federation.tensorboard import TrainingLogger
 from frl.report.runs import export_run, is_finished, load_run
 from frl.train import train
@@ -65,6 +66,28 @@ def test_auto_resumes_a_killed_run_skips_a_finished_one_and_the_report_reads_it(
     assert run.evaluation["per_task"]["left"]["episodes"] == 1
     exported = load_run(export_run(run_dir, tmp_path / "data" / "fig4" / run_dir.name))
     np.testing.assert_allclose(exported.step_rewards, run.step_rewards, rtol=1e-6)
+
+
+def test_auto_tests_a_trained_run_whose_test_failed_without_training_again(tmp_path, monkeypatch):
+    run_dir = tmp_path / "fig4" / "central-seed0"
+    cfg = compose_config(run_dir, ONE_CLIENT)
+
+    def failing_test(*args, **kwargs):
+        raise RuntimeError("test stopped")
+
+    monkeypatch.setattr("frl.evaluate.evaluate_run", failing_test)
+    with pytest.raises(RuntimeError, match="test stopped"):
+        train(cfg)
+    assert "evaluation" not in json.loads((run_dir / "results.json").read_text())
+    assert not is_finished(run_dir) and not rundir.is_finished(run_dir)
+    monkeypatch.undo()
+
+    rounds_seen = []
+    results = train(cfg, on_round_end=lambda s: rounds_seen.append(s.completed_rounds))
+
+    assert rounds_seen == [] and results["rounds"] == 2  # tested, not trained
+    assert results["evaluation"]["per_task"]["left"]["episodes"] == 1
+    assert is_finished(run_dir) and rundir.is_finished(run_dir)
 
 
 def test_reproduce_runs_a_preset_sweep_exports_and_reports(tmp_path):
