@@ -25,6 +25,7 @@ import os
 import shlex
 import subprocess
 import sys
+import traceback
 from pathlib import Path
 from typing import Any
 
@@ -61,14 +62,23 @@ class ExportRun(Callback):
     def on_job_end(self, config: Any, job_return: Any, **kwargs: Any) -> None:
         from hydra.core.utils import JobStatus
 
-        if job_return.status != JobStatus.COMPLETED:
-            return
         run_dir = Path(config.get("run_dir") or config.hydra.runtime.output_dir)
+        if job_return.status != JobStatus.COMPLETED:
+            # Hydra raises a failed job's error only once the whole sweep has ended.
+            error = getattr(job_return, "_return_value", None)
+            log.error("%s failed: %s", run_dir, "".join(_format(error)).rstrip())
+            return
         try:
             if export_if_stale(run_dir, self.data_dir / run_dir.name):
                 log.info("exported %s to %s", run_dir, self.data_dir / run_dir.name)
         except (OSError, RunDataError) as error:  # keep the sweep going; --export-only retries
             log.error("could not export %s: %s", run_dir, error)
+
+
+def _format(error: object) -> list[str]:
+    if isinstance(error, BaseException):
+        return traceback.format_exception(error)
+    return [repr(error)]
 
 
 def export_if_stale(run_dir: Path, target: Path) -> bool:

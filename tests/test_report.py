@@ -281,6 +281,22 @@ def test_export_callback_and_export_only_skip_what_is_current(root, tmp_path):
     assert export_finished(root, tmp_path / "data") == []
 
 
+def test_a_failed_job_is_logged_when_it_ends_not_when_the_sweep_does(root, tmp_path, caplog):
+    from hydra.core.utils import JobStatus
+
+    try:
+        raise RuntimeError("the test could not start")
+    except RuntimeError as error:
+        failed = SimpleNamespace(status=JobStatus.FAILED, _return_value=error)
+    run_dir = root / "fig4" / "central-seed1"
+
+    ExportRun(str(tmp_path / "data")).on_job_end({"run_dir": str(run_dir)}, failed)
+
+    assert f"{run_dir} failed: Traceback" in caplog.text
+    assert "RuntimeError: the test could not start" in caplog.text
+    assert not (tmp_path / "data").exists()
+
+
 def test_export_records_the_versions_the_run_trained_with(root, tmp_path):
     run_dir = root / "fig4" / "fedavg-seed2"
     write_json_atomic(run_dir / "versions.json", {"git_commit": "feedbeef", "git_dirty": False})
