@@ -491,17 +491,19 @@ def runs_block(collection: Collection) -> str:
                     f"{run.interval:,}",
                     _reward_label(run),
                     _hours(wall),
+                    run.config.get("cores") or "all",
                     (commit or "–")[:10],
                     "yes" if run.evaluation else "no",
                 ]
             )
-    text = table(
-        ["sweep", "run", "scheme", "seed", "interval", "reward", "wall time", "commit", "tested"],
-        rows,
-    )
+    header = ["sweep", "run", "scheme", "seed", "interval", "reward", "wall time", "cores",
+              "commit", "tested"]  # fmt: skip
+    text = table(header, rows)
     text += (
-        f"\n\nTotal wall time of the {len(rows)} finished runs: {_hours(sum(walls))} "
-        f"(run one after another). Commits: {', '.join(sorted(commits)) or '–'}."
+        f"\n\nTotal wall time of the {len(rows)} finished runs: {_hours(sum(walls))}, the "
+        "sum of their wall times. Runs on a share of the cores ran side by side "
+        "(`frl.reproduce --jobs`), so less time passed than that, and each took longer "
+        f"than it would alone. Commits: {', '.join(sorted(commits)) or '–'}."
     )
     unfinished = [p for paths in collection.unfinished.values() for p in paths]
     if unfinished:
