@@ -220,9 +220,13 @@ def main(argv: list[str] | None = None) -> int:
     env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
     status = 0
     if not args.export_only and args.jobs > 1:
-        outcomes = run_side_by_side(
-            commands, args.jobs, args.runs_dir / "logs", [label for label, _ in labelled], env
-        )
+        try:
+            outcomes = run_side_by_side(
+                commands, args.jobs, args.runs_dir / "logs", [label for label, _ in labelled], env
+            )
+        except KeyboardInterrupt:
+            log.error("interrupted: every running job was stopped; rerun to continue")
+            return 130
         failed = [o for o in outcomes if o.returncode != 0]
         for outcome in failed:
             log.error("%s stopped with exit code %d (log: %s); rerun to continue",

@@ -1,12 +1,14 @@
 """Multirun jobs side by side: the job list Hydra would run, the cores each gets, and a
 runner that keeps at most N going, logs each and survives a failed one."""
 
+import os
 import sys
 import time
+from types import SimpleNamespace
 
 import pytest
 
-from frl import reproduce
+from frl import reproduce, side_by_side
 from frl.side_by_side import (
     cores_per_job,
     expand_jobs,
@@ -84,3 +86,46 @@ def test_reproduce_refuses_more_jobs_than_cores(capsys):
         reproduce.main(["--jobs", "64", "--dry-run"])
     assert info.value.code == 2
     assert "--jobs: 64 jobs side by side need at least 64 cores" in capsys.readouterr().err
+
+
+def test_an_interrupt_stops_every_running_job(tmp_path, monkeypatch):
+    polls = []
+
+    def interrupt_on_the_third_poll(seconds):
+        polls.append(seconds)
+        if len(list(tmp_path.glob("*.pid"))) == 2:  # both started and running
+            raise KeyboardInterrupt
+        time.sleep(0.2)
+
+    monkeypatch.setattr(
+        side_by_side,
+        "time",
+        SimpleNamespace(sleep=interrupt_on_the_third_poll, perf_counter=time.perf_counter),
+    )
+    script = (
+        "import os, sys, time, pathlib;"
+        "pathlib.Path(sys.argv[1]).write_text(str(os.getpid())); time.sleep(120)"
+    )
+    commands = [[sys.executable, "-c", script, str(tmp_path / f"{i}.pid")] for i in range(3)]
+
+    with pytest.raises(KeyboardInterrupt):
+        run_side_by_side(commands, 2, tmp_path / "logs")
+
+    pids = [int(p.read_text()) for p in sorted(tmp_path.glob("*.pid"))]
+    assert len(pids) == 2  # the third never started
+    deadline = time.time() + 20
+    while time.time() < deadline and any(_alive(pid) for pid in pids):
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in pids)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie (ended, not yet reaped) is gone for our purpose
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
