@@ -18,7 +18,7 @@ from frl.train_config import ConfigError, load_run_config, migrate_saved_config,
 from frl.yardsticks import cache_dir
 
 REPO = Path(__file__).resolve().parents[1]
-OLD_RUN = REPO / "docs" / "results" / "data" / "fig4" / "fedavg-seed0"
+OLD_RUN = REPO / "docs" / "results" / "data" / "edition1" / "fig4" / "fedavg-seed0"
 
 
 def test_unknown_policy_fails_with_the_valid_names(capsys):
