@@ -211,6 +211,7 @@ def test_report_writes_figures_and_tables_beside_the_paper(root, tmp_path):
         "| yes |" in text
     )
     assert "Unfinished (not used): `fig6/interval250-seed0`" in text
+    assert "Best interval here: 10 (final training reward" in text
     assert "Total wall time of the 10 finished runs: 10.0 min, the sum" in text
 
 
@@ -240,6 +241,7 @@ def test_a_report_from_fig4_alone_marks_the_other_figures_not_run(root, tmp_path
 
     text = (tmp_path / "r.md").read_text()
     assert "fig3" not in written and "fig6" in written  # fig6: the borrowed interval
+    assert "Best interval here" not in (tmp_path / "r.md").read_text()  # one point: no best
     assert "## Fig. 3: reward tuning\n\n<!-- frl.report:begin fig3 -->\n_not run yet_" in text
     assert "(n=1)" in text
 

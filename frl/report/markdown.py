@@ -386,7 +386,7 @@ def fig6_block(points: list[IntervalPoint], settings: CurveSettings, image: str 
         rows,
     )
     finite = [p for p in points if np.isfinite(p.final_reward.mean)]
-    if finite:
+    if len(finite) >= 2:  # a best of one is no finding
         best = max(finite, key=lambda p: p.final_reward.mean)
         text += (
             f"\n\nBest interval here: {best.interval:,} (final training reward "
