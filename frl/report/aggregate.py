@@ -135,7 +135,7 @@ def scheme_curves(runs: list[RunRecord], settings: CurveSettings) -> SchemeCurve
 
 def fig4(collection: Collection, settings: CurveSettings) -> dict[str, SchemeCurves]:
     """Per scheme present in ``fig4/``."""
-    by_scheme = _group(collection.of("fig4"), lambda r: r.scheme)
+    by_scheme = group(collection.of("fig4"), lambda r: r.scheme)
     return {s: scheme_curves(by_scheme[s], settings) for s in SCHEMES if s in by_scheme}
 
 
@@ -170,7 +170,7 @@ def _summary(tables: dict[int, dict[str, Any]]) -> EvalSummary:
     seeds = sorted(tables)
     summary = EvalSummary(seeds=seeds)
     for task in (*TASKS, "average"):
-        rows = [_task_metrics(tables[seed], task) for seed in seeds]
+        rows = [task_metrics(tables[seed], task) for seed in seeds]
         if all(row is None for row in rows):
             continue
         summary.metrics[task] = {
@@ -181,7 +181,7 @@ def _summary(tables: dict[int, dict[str, Any]]) -> EvalSummary:
 
 
 def fig5(collection: Collection) -> dict[str, EvalSummary]:
-    by_scheme = _group(collection.of("fig4"), lambda r: r.scheme)
+    by_scheme = group(collection.of("fig4"), lambda r: r.scheme)
     summaries = {s: eval_summary(by_scheme[s]) for s in SCHEMES if s in by_scheme}
     return {s: v for s, v in summaries.items() if v is not None}
 
@@ -206,12 +206,9 @@ def fig5_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
 
 
 def fig3_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
-    """The yardsticks of Fig. 3's runs, borrowed fig4/ runs included: their travel time
-    and collision rate (not their reward, which each run's weights score differently)."""
-    own = collection.of("fig3")
-    schemes = {r.scheme for r in own}
-    borrowed = [r for r in collection.of("fig4") if r.scheme in schemes and is_paper_reward(r)]
-    return yardsticks_of(own + borrowed)
+    """The yardsticks of Fig. 3's runs (:func:`fig3_runs`): their travel time and
+    collision rate (not their reward, which each run's weights score differently)."""
+    return yardsticks_of([run for runs, _ in fig3_runs(collection).values() for run in runs])
 
 
 # --------------------------------------------------------------------- Fig. 6
@@ -226,18 +223,25 @@ class IntervalPoint:
     total_bytes: Estimate | None
 
 
-def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]:
-    """FedAvg per interval: fig6/ runs, plus fig4/'s FedAvg runs for the interval(s)
-    fig6/ does not hold."""
-    own = _group([r for r in collection.of("fig6") if r.scheme == "fedavg"], lambda r: r.interval)
-    borrowed = _group(
+def fig6_runs(collection: Collection) -> dict[int, tuple[list[RunRecord], bool]]:
+    """FedAvg runs per interval, by interval, each with whether they are borrowed: fig6/
+    runs, plus fig4/'s FedAvg runs for the interval(s) fig6/ does not hold."""
+    own = group([r for r in collection.of("fig6") if r.scheme == "fedavg"], lambda r: r.interval)
+    borrowed = group(
         [r for r in collection.of("fig4") if r.scheme == "fedavg" and is_paper_reward(r)],
         lambda r: r.interval,
     )
+    return {
+        interval: (sorted(own.get(interval) or borrowed[interval], key=lambda r: r.seed),
+                   interval not in own)
+        for interval in sorted(set(own) | set(borrowed))
+    }  # fmt: skip
+
+
+def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]:
+    """FedAvg per interval (:func:`fig6_runs`)."""
     points = []
-    for interval in sorted(set(own) | set(borrowed)):
-        runs = own.get(interval) or borrowed[interval]
-        runs = sorted(runs, key=lambda r: r.seed)
+    for interval, (runs, borrowed) in fig6_runs(collection).items():
         finals = [float(reward_curve(r, settings.episode_window)[-1]) for r in runs]
         finals = [v for v in finals if np.isfinite(v)]
         tests = [r.evaluation["average"]["average_reward"] for r in runs if r.evaluation]
@@ -246,7 +250,7 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
             IntervalPoint(
                 interval=interval,
                 seeds=[r.seed for r in runs],
-                borrowed=interval not in own,
+                borrowed=borrowed,
                 final_reward=mean_ci(finals) if finals else Estimate(float("nan"), None, 0),
                 test_reward=_estimate(tests),
                 total_bytes=_estimate(total_bytes),
@@ -273,18 +277,26 @@ class RewardPoint:
         return f"α={self.alpha:g}, λ={self.lambda_:g}"
 
 
-def fig3(collection: Collection) -> list[RewardPoint]:
-    """Per reward setting: fig3/ runs, plus fig4/'s runs of the same scheme with the
-    paper reward for that setting when fig3/ does not hold it."""
+def fig3_runs(
+    collection: Collection,
+) -> dict[tuple[str, float, float], tuple[list[RunRecord], bool]]:
+    """Runs per reward setting (:func:`reward_key`), in Fig. 3's order, each with whether
+    they are borrowed: fig3/ runs, plus fig4/'s runs of the same scheme with the paper
+    reward for that setting when fig3/ does not hold it."""
     own = collection.of("fig3")
     schemes = {r.scheme for r in own}
     borrowed = [r for r in collection.of("fig4") if r.scheme in schemes and is_paper_reward(r)]
-    own_groups = _group(own, reward_key)
-    borrowed_groups = _group(borrowed, reward_key)
-    points = []
+    own_groups = group(own, reward_key)
+    borrowed_groups = group(borrowed, reward_key)
     keys = sorted(set(own_groups) | set(borrowed_groups), key=_fig3_order)
-    for key in keys:
-        runs = own_groups.get(key) or borrowed_groups[key]
+    return {key: (own_groups.get(key) or borrowed_groups[key], key not in own_groups)
+            for key in keys}  # fmt: skip
+
+
+def fig3(collection: Collection) -> list[RewardPoint]:
+    """Per reward setting (:func:`fig3_runs`)."""
+    points = []
+    for key, (runs, borrowed) in fig3_runs(collection).items():
         points.append(
             RewardPoint(
                 name=key[0],
@@ -292,7 +304,7 @@ def fig3(collection: Collection) -> list[RewardPoint]:
                 lambda_=key[2],
                 scheme=", ".join(sorted({r.scheme for r in runs})),
                 seeds=sorted(r.seed for r in runs),
-                borrowed=key not in own_groups,
+                borrowed=borrowed,
                 summary=eval_summary(runs),
             )
         )
@@ -300,7 +312,8 @@ def fig3(collection: Collection) -> list[RewardPoint]:
 
 
 # ------------------------------------------------------------------ helpers
-def _group(runs: list[RunRecord], key: Any) -> dict[Any, list[RunRecord]]:
+def group(runs: list[RunRecord], key: Any) -> dict[Any, list[RunRecord]]:
+    """``runs`` by ``key(run)``, in their order."""
     groups: dict[Any, list[RunRecord]] = {}
     for run in runs:
         groups.setdefault(key(run), []).append(run)
@@ -331,7 +344,7 @@ def _fig3_order(key: tuple[str, float, float]) -> tuple[int, tuple[str, float, f
     return len(FIG3_SETTINGS), key
 
 
-def _task_metrics(evaluation: dict[str, Any], task: str) -> dict[str, Any] | None:
+def task_metrics(evaluation: dict[str, Any], task: str) -> dict[str, Any] | None:
     if task == "average":
         return evaluation.get("average")
     return evaluation.get("per_task", {}).get(task)

@@ -17,11 +17,14 @@ import numpy as np
 
 from frl.report.aggregate import (
     PAPER_INTERVAL,
+    PAPER_REWARD,
     SCHEME_LABELS,
     CurveSettings,
-    is_paper_reward,
+    fig3_runs,
+    fig6_runs,
+    group,
     reward_curve,
-    reward_key,
+    task_metrics,
 )
 from frl.report.collect import Collection
 from frl.report.runs import RunRecord
@@ -83,8 +86,7 @@ def paired(a: PerSeed, b: PerSeed) -> Estimate | None:
 # ------------------------------------------------------------------ metrics
 def test_metric(name: str, task: str = "average") -> Metric:
     def read(run: RunRecord) -> float | None:
-        table = run.evaluation or {}
-        row = table.get("average") if task == "average" else table.get("per_task", {}).get(task)
+        row = task_metrics(run.evaluation or {}, task)
         return None if row is None else row.get(name)
 
     return read
@@ -124,9 +126,7 @@ def crossing_step(settings: CurveSettings) -> Metric:
 # ------------------------------------------------------------------- claims
 def fig4_fig5_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Claim]:
     """Figs. 4 and 5: FedAvg-DDPG against each baseline, and against full throttle."""
-    by_scheme: dict[str, list[RunRecord]] = {}
-    for run in runs:
-        by_scheme.setdefault(run.scheme, []).append(run)
+    by_scheme = group(runs, lambda run: run.scheme)
 
     def of(scheme: str, metric: Metric) -> PerSeed:
         return per_seed(by_scheme.get(scheme, []), metric)
@@ -199,13 +199,12 @@ def fig4_fig5_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Cla
     return claims
 
 
-def fig6_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Claim]:
+def fig6_claims(
+    runs_by_interval: dict[int, list[RunRecord]], settings: CurveSettings
+) -> list[Claim]:
     """Fig. 6: interval 2,000 is the best, against the best other interval."""
     final = final_training_reward(settings)
-    by_interval: dict[int, PerSeed] = {}
-    for run in runs:
-        if run.scheme == "fedavg":
-            by_interval.setdefault(run.interval, {}).update(per_seed([run], final))
+    by_interval = {i: per_seed(runs, final) for i, runs in runs_by_interval.items()}
     others = {i: v for i, v in by_interval.items() if i != PAPER_INTERVAL and v}
     paper = by_interval.get(PAPER_INTERVAL)
     if not others or not paper:
@@ -236,16 +235,11 @@ def fig3_claims(balanced: list[RunRecord], reference: list[RunRecord]) -> list[C
 
 def all_claims(collection: Collection, settings: CurveSettings) -> list[Claim]:
     """Every claim the runs of ``collection`` can test (rows marked not run otherwise)."""
-    fig4_runs = collection.of("fig4")
-    fig6_runs = collection.of("fig6") + [
-        r for r in fig4_runs if r.scheme == "fedavg" and is_paper_reward(r)
-    ]
-    fig3_runs = collection.of("fig3")
-    tuned_scheme = {r.scheme for r in fig3_runs}
-    balanced = [r for r in fig4_runs if r.scheme in tuned_scheme and is_paper_reward(r)]
-    reference = [r for r in fig3_runs if reward_key(r)[0] == "reference"]
+    by_reward = {key: runs for key, (runs, _) in fig3_runs(collection).items()}
+    balanced = by_reward.get((PAPER_REWARD["name"], PAPER_REWARD["alpha"], PAPER_REWARD["lambda_"]))
+    reference = [run for key, runs in by_reward.items() if key[0] == "reference" for run in runs]
     return [
-        *fig3_claims(balanced, reference),
-        *fig4_fig5_claims(fig4_runs, settings),
-        *fig6_claims(fig6_runs, settings),
+        *fig3_claims(balanced or [], reference),
+        *fig4_fig5_claims(collection.of("fig4"), settings),
+        *fig6_claims({i: runs for i, (runs, _) in fig6_runs(collection).items()}, settings),
     ]
