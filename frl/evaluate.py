@@ -39,7 +39,7 @@ from frl.episodes import (
     summarize,
 )
 from frl.federation.plan import evaluation_seeds
-from frl.federation.workers import WorkerPool
+from frl.federation.workers import WorkerPool, available_cores
 from frl.policies import YARDSTICK_LABELS, YARDSTICKS, make_yardstick
 
 MODEL = "model"
@@ -326,7 +326,6 @@ def _label(name: str) -> str:
 
 
 def _run_settings(run_dir: Path) -> Any:
-    from frl.federation.workers import available_cores
     from frl.train_config import load_run_config, validate
 
     config = load_run_config(run_dir)

@@ -110,11 +110,19 @@ def sweep_command(
     sweep: str, seeds: str, runs_dir: Path, data_dir: Path, overrides: list[str]
 ) -> list[str]:
     """The Hydra multirun of one figure's preset."""
+    return _multirun(sweep, [f"seed={seeds}"], runs_dir, data_dir, overrides)
+
+
+def _multirun(
+    sweep: str, leading: list[str], runs_dir: Path, data_dir: Path, trailing: list[str]
+) -> list[str]:
+    """``python -m frl.train -m`` of a figure's preset into its sweep and data
+    directories; ``leading`` overrides before those, ``trailing`` after."""
     return [
-        sys.executable, "-m", "frl.train", "-m", f"+experiment={sweep}", f"seed={seeds}",
+        sys.executable, "-m", "frl.train", "-m", f"+experiment={sweep}", *leading,
         f"hydra.sweep.dir={runs_dir / sweep}",
         f"hydra.callbacks.export_run.data_dir={data_dir / sweep}",
-        *overrides,
+        *trailing,
     ]  # fmt: skip
 
 
@@ -123,13 +131,12 @@ def job_commands(
 ) -> list[tuple[str, list[str]]]:
     """Each job of a figure's multirun as its own one-job multirun on ``cores`` cores,
     with a label naming what varies between the jobs."""
-    base = sweep_command(sweep, seeds, runs_dir, data_dir, [])
     jobs = expand_jobs(sweeper_params(sweep), [f"seed={seeds}", *overrides])
     varying = [i for i in range(len(jobs[0])) if len({job[i] for job in jobs}) > 1]
     return [
         (
             " ".join([sweep, *(job[i] for i in varying)]),
-            [*base[:5], *with_cores(job, cores), *base[6:]],
+            _multirun(sweep, with_cores(job, cores), runs_dir, data_dir, []),
         )
         for job in jobs
     ]

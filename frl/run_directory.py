@@ -219,12 +219,17 @@ def is_finished(run_dir: Path) -> bool:
     results = read_results(run_dir)
     if results is None:
         return False
-    # A test that failed or was stopped leaves results without "evaluation": resuming
-    # the run tests it then, without training again.
-    tests = (Path(run_dir) / CONFIG_FILE).is_file() and read_saved_config(run_dir).get(
-        "eval_episodes", 0
-    )
-    return "evaluation" in results or not tests
+    config = read_saved_config(run_dir) if (Path(run_dir) / CONFIG_FILE).is_file() else {}
+    return evaluation_done(results, config)
+
+
+def evaluation_done(results: dict[str, Any], config: dict[str, Any]) -> bool:
+    """The test a run's ``config`` asks for (``eval_episodes`` > 0) is in its ``results``.
+
+    A test that failed or was stopped leaves results without "evaluation": resuming the
+    run tests it then, without training again.
+    """
+    return "evaluation" in results or not config.get("eval_episodes", 0)
 
 
 def newest_resumable(roots: Iterable[str | Path], exclude: Path | None = None) -> Path | None:

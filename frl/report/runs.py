@@ -32,6 +32,7 @@ from frl.run_directory import (
     STATE_FILE,
     TB_DIR,
     VERSIONS_FILE,
+    evaluation_done,
 )
 from frl.run_directory import STEP_REWARDS_FILE as STEP_REWARDS_NPY
 
@@ -133,8 +134,7 @@ def is_finished(run_dir: Path) -> bool:
     state_path = run_dir / STATE_FILE
     if state_path.exists() and not read_json(state_path).get("training_finished"):
         return False
-    config = _read_config(run_dir)
-    return "evaluation" in results or not config.get("eval_episodes", 0)
+    return evaluation_done(results, _read_config(run_dir))
 
 
 def load_run(path: str | os.PathLike[str]) -> RunRecord:
