@@ -33,7 +33,7 @@ from hydra.experimental.callback import Callback
 
 from frl.fileio import read_json
 from frl.report.collect import FIGURE_DIRS
-from frl.report.runs import RunDataError, export_run, exported_results, is_finished
+from frl.report.runs import RunDataError, export_run, exported_results, has_complete_results
 from frl.run_directory import RESULTS_FILE
 from frl.side_by_side import (
     cores_per_job,
@@ -83,7 +83,7 @@ def _format(error: object) -> list[str]:
 
 def export_if_stale(run_dir: Path, target: Path) -> bool:
     """Export a finished run unless ``target`` already holds its current results."""
-    if not is_finished(run_dir):
+    if not has_complete_results(run_dir):
         return False
     exported = target / RESULTS_FILE
     if exported.exists() and read_json(exported) == exported_results(run_dir):

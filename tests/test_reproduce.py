@@ -15,7 +15,7 @@ from train_helpers import TINY_OVERRIDES, compose_config
 
 from frl import run_directory as rundir
 from frl.federation.tensorboard import TrainingLogger
-from frl.report.runs import export_run, is_finished, load_run
+from frl.report.runs import export_run, has_complete_results, load_run
 from frl.train import train
 
 ONE_CLIENT = [
@@ -45,10 +45,10 @@ def test_auto_resumes_a_killed_run_skips_a_finished_one_and_the_report_reads_it(
 
     with pytest.raises(_Killed):
         train(cfg, on_round_end=kill_after_first_round)
-    assert not is_finished(run_dir)
+    assert not has_complete_results(run_dir)
 
     results = train(cfg)  # continues from round 1
-    assert results["rounds"] == 2 and is_finished(run_dir)
+    assert results["rounds"] == 2 and has_complete_results(run_dir)
     events = sorted((run_dir / "tb").iterdir())
     saved = (run_dir / "results.json").read_text()
 
@@ -79,7 +79,7 @@ def test_auto_tests_a_trained_run_whose_test_failed_without_training_again(tmp_p
     with pytest.raises(RuntimeError, match="test stopped"):
         train(cfg)
     assert "evaluation" not in json.loads((run_dir / "results.json").read_text())
-    assert not is_finished(run_dir) and not rundir.is_finished(run_dir)
+    assert not has_complete_results(run_dir) and not rundir.is_finished(run_dir)
     monkeypatch.undo()
 
     rounds_seen = []
@@ -87,7 +87,7 @@ def test_auto_tests_a_trained_run_whose_test_failed_without_training_again(tmp_p
 
     assert rounds_seen == [] and results["rounds"] == 2  # tested, not trained
     assert results["evaluation"]["per_task"]["left"]["episodes"] == 1
-    assert is_finished(run_dir) and rundir.is_finished(run_dir)
+    assert has_complete_results(run_dir) and rundir.is_finished(run_dir)
 
 
 def test_reproduce_runs_a_preset_sweep_exports_and_reports(tmp_path):
@@ -128,7 +128,7 @@ def test_reproduce_runs_a_preset_sweep_exports_and_reports(tmp_path):
     done = reproduce()
     assert done.returncode == 0, done.stderr[-3000:]
     run_dir = tmp_path / "runs" / "fig4" / "central-seed0"
-    assert is_finished(run_dir)
+    assert has_complete_results(run_dir)
     data = tmp_path / "data" / "fig4" / "central-seed0"
     assert sorted(p.name for p in data.iterdir()) == [
         "config.yaml",
@@ -157,7 +157,7 @@ def test_reproduce_runs_jobs_side_by_side_each_on_its_share(tmp_path):
     assert done.returncode == 0, done.stderr[-3000:]
     for seed in (0, 1):
         run_dir = tmp_path / "runs" / "fig4" / f"central-seed{seed}"
-        assert is_finished(run_dir)
+        assert has_complete_results(run_dir)
         assert "cores: 1\n" in (run_dir / "config.yaml").read_text()
         assert (tmp_path / "data" / "fig4" / f"central-seed{seed}" / "results.json").exists()
     logs = sorted(p.name for p in (tmp_path / "runs" / "logs").iterdir())

@@ -18,7 +18,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from frl.report.runs import RunDataError, RunRecord, is_finished, load_run
+from frl.report.runs import RunDataError, RunRecord, has_complete_results, load_run
 from frl.run_directory import CONFIG_FILE, RESULTS_FILE, STATE_FILE
 
 FIGURE_DIRS: tuple[str, ...] = ("fig4", "fig6", "fig3")
@@ -63,7 +63,7 @@ def collect(root: str | os.PathLike[str]) -> Collection:
     collection = Collection(root)
     for sweep in FIGURE_DIRS:
         for run_dir in _run_dirs(root / sweep):
-            if _is_data_dir(run_dir) or is_finished(run_dir):
+            if _is_data_dir(run_dir) or has_complete_results(run_dir):
                 collection.runs.setdefault(sweep, []).append(load_run(run_dir))
             else:
                 collection.unfinished.setdefault(sweep, []).append(run_dir)

@@ -122,8 +122,10 @@ class RunRecord:
         return training + self.results.get("evaluation_wall_time_s", 0.0)
 
 
-def is_finished(run_dir: Path) -> bool:
-    """Training finished and, if the run's config asks for it, evaluation too."""
+def has_complete_results(run_dir: Path) -> bool:
+    """The run's results say training finished and, if its config asks for it, the test
+    too. Unlike ``run_directory.is_finished`` it needs no ``state.json``, so runs saved by
+    older frl versions count as well."""
     results_path = run_dir / RESULTS_FILE
     if not results_path.exists():
         return False
@@ -170,7 +172,7 @@ def exported_results(run_dir: Path) -> dict[str, Any]:
 def export_run(run_dir: str | os.PathLike[str], target: str | os.PathLike[str]) -> Path:
     """Write the run's small result files into ``target`` (created); return it."""
     run_dir, target = Path(run_dir), Path(target)
-    if not is_finished(run_dir):
+    if not has_complete_results(run_dir):
         raise RunDataError(f"{run_dir}: not a finished run")
     record = load_run(run_dir)
     write_json_atomic(target / RESULTS_FILE, exported_results(run_dir))
