@@ -181,6 +181,22 @@ def test_fig6_borrows_the_fig4_interval_and_fig3_the_paper_reward(root):
     assert collection.unfinished["fig6"][0].name == "interval250-seed0"
 
 
+def test_fig3_yardsticks_are_those_tested_with_the_paper_reward(tmp_path):
+    # The oracle picks its start by the run's reward weights: under alpha -0.005 it waits
+    # longer, so Fig. 3's yardstick rows must not take whichever reward comes first.
+    for name, reward, oracle_steps in (
+        ("fig3/alpha-0.005_lambda-10-seed0", "alpha-0.005_lambda-10", 48.0),
+        ("fig4/central-seed0", "paper", 44.0),
+    ):
+        tested = evaluation(4.0, 0.1, 50.0)
+        tested["yardsticks"] = {"oracle": evaluation(6.7, 0.0, oracle_steps)}
+        make_run(tmp_path / name, "central", 0, reward=reward, evaluation=tested)
+
+    yardsticks = aggregate.fig3_yardsticks(collect(tmp_path))
+
+    assert yardsticks["oracle"].metrics["average"]["average_travel_time"].mean == 44.0
+
+
 def test_report_writes_figures_and_tables_beside_the_paper(root, tmp_path):
     out = tmp_path / "docs" / "results.md"
 
