@@ -12,10 +12,12 @@ from report_helpers import evaluation, make_run
 from frl.fileio import write_json_atomic
 from frl.report import aggregate
 from frl.report.__main__ import main as report_main
-from frl.report.aggregate import CurveSettings
+from frl.report.aggregate import CurveSettings, IntervalPoint
 from frl.report.build import MissingDependency, build_report
 from frl.report.collect import collect
+from frl.report.markdown import fig6_block
 from frl.report.runs import RunDataError, export_run, load_run
+from frl.report.stats import Estimate
 from frl.reproduce import ExportRun, export_finished, export_if_stale
 from frl.reproduce import main as reproduce_main
 
@@ -197,6 +199,17 @@ def test_fig3_yardsticks_are_those_tested_with_the_paper_reward(tmp_path):
     assert yardsticks["oracle"].metrics["average"]["average_travel_time"].mean == 44.0
 
 
+def test_fig6_names_a_best_interval_only_over_the_same_seeds():
+    def point(interval: int, seeds: list[int], final: float) -> IntervalPoint:
+        return IntervalPoint(interval, seeds, False, Estimate(final, 0.5, len(seeds)), None, None)
+
+    same = fig6_block([point(500, [0, 1], 4.0), point(2000, [0, 1], 5.0)], SETTINGS, None)
+    mixed = fig6_block([point(500, [0], 6.0), point(2000, [0, 1], 5.0)], SETTINGS, None)
+
+    assert "Best interval here: 2,000 (final training reward 5.00 ± 0.50)" in same
+    assert "Best interval here" not in mixed and "No best interval is named" in mixed
+
+
 def test_report_writes_figures_and_tables_beside_the_paper(root, tmp_path):
     out = tmp_path / "docs" / "results.md"
 
@@ -227,7 +240,9 @@ def test_report_writes_figures_and_tables_beside_the_paper(root, tmp_path):
         "| yes |" in text
     )
     assert "Unfinished (not used): `fig6/interval250-seed0`" in text
-    assert "Best interval here: 10 (final training reward" in text
+    # interval 5 has seeds 0-1, interval 10 (fig4's runs) seeds 0-2: their means differ
+    # by traffic as much as by interval, so no best is named
+    assert "No best interval is named: the intervals run so far have different seeds." in text
     assert "Total wall time of the 10 finished runs: 10.0 min, the sum" in text
 
 

@@ -386,14 +386,20 @@ def fig6_block(points: list[IntervalPoint], settings: CurveSettings, image: str 
         rows,
     )
     finite = [p for p in points if np.isfinite(p.final_reward.mean)]
-    if len(finite) >= 2:  # a best of one is no finding
-        best = max(finite, key=lambda p: p.final_reward.mean)
-        text += (
-            f"\n\nBest interval here: {best.interval:,} (final training reward "
-            f"{fmt(best.final_reward)}); the paper: {PAPER_FIG6_BEST[0]:,} with "
-            f"{PAPER_FIG6_BEST[1]}, a biphasic curve."
+    if len(finite) < 2:  # a best of one is no finding
+        return text
+    if len({tuple(p.seeds) for p in finite}) > 1:
+        # Means over different seeds differ by their traffic as much as by the interval.
+        return text + (
+            "\n\nNo best interval is named: the intervals run so far have different seeds. "
+            f"The paper's best: {PAPER_FIG6_BEST[0]:,} with {PAPER_FIG6_BEST[1]}."
         )
-    return text
+    best = max(finite, key=lambda p: p.final_reward.mean)
+    return text + (
+        f"\n\nBest interval here: {best.interval:,} (final training reward "
+        f"{fmt(best.final_reward)}); the paper: {PAPER_FIG6_BEST[0]:,} with "
+        f"{PAPER_FIG6_BEST[1]}, a biphasic curve."
+    )
 
 
 def fig3_block(
