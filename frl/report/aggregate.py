@@ -26,6 +26,8 @@ SCHEME_LABELS = {"central": "Central-DDPG", "separate": "Sep-DDPG", "fedavg": "F
 TASKS: tuple[str, ...] = ("left", "straight", "right")
 PAPER_INTERVAL = 2000
 PAPER_REWARD = {"name": "paper", "alpha": -0.05, "lambda_": -10.0}
+PAPER_REWARD_KEY = (PAPER_REWARD["name"], PAPER_REWARD["alpha"], PAPER_REWARD["lambda_"])
+"""The paper reward as :func:`reward_key` gives it."""
 FIG3_SETTINGS: tuple[tuple[str, float, float], ...] = (
     ("paper", -0.005, -1.0),
     ("paper", -0.005, -10.0),
@@ -209,9 +211,8 @@ def fig3_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
     """The yardsticks of Fig. 3's runs with the paper reward (:func:`fig3_runs`): their
     travel time and collision rate. The oracle waits for a clean start by the run's
     weights, longer where time costs less (alpha -0.005), so one reward must be chosen."""
-    return yardsticks_of(
-        [run for runs, _ in fig3_runs(collection).values() for run in runs if is_paper_reward(run)]
-    )
+    paper_reward_runs, _ = fig3_runs(collection).get(PAPER_REWARD_KEY, ([], False))
+    return yardsticks_of(paper_reward_runs)
 
 
 # --------------------------------------------------------------------- Fig. 6
@@ -333,11 +334,7 @@ def reward_key(run: RunRecord) -> tuple[str, float, float]:
 
 
 def is_paper_reward(run: RunRecord) -> bool:
-    return reward_key(run) == (
-        PAPER_REWARD["name"],
-        PAPER_REWARD["alpha"],
-        PAPER_REWARD["lambda_"],
-    )
+    return reward_key(run) == PAPER_REWARD_KEY
 
 
 def _fig3_order(key: tuple[str, float, float]) -> tuple[int, tuple[str, float, float]]:

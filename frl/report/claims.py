@@ -17,7 +17,7 @@ import numpy as np
 
 from frl.report.aggregate import (
     PAPER_INTERVAL,
-    PAPER_REWARD,
+    PAPER_REWARD_KEY,
     SCHEME_LABELS,
     CurveSettings,
     fig3_runs,
@@ -236,7 +236,7 @@ def fig3_claims(balanced: list[RunRecord], reference: list[RunRecord]) -> list[C
 def all_claims(collection: Collection, settings: CurveSettings) -> list[Claim]:
     """Every claim the runs of ``collection`` can test (rows marked not run otherwise)."""
     by_reward = {key: runs for key, (runs, _) in fig3_runs(collection).items()}
-    balanced = by_reward.get((PAPER_REWARD["name"], PAPER_REWARD["alpha"], PAPER_REWARD["lambda_"]))
+    balanced = by_reward.get(PAPER_REWARD_KEY)
     reference = [run for key, runs in by_reward.items() if key[0] == "reference" for run in runs]
     return [
         *fig3_claims(balanced or [], reference),
