@@ -15,7 +15,7 @@ from frl.report.__main__ import main as report_main
 from frl.report.aggregate import CurveSettings, IntervalPoint
 from frl.report.build import MissingDependency, build_report
 from frl.report.collect import collect
-from frl.report.markdown import fig6_block
+from frl.report.markdown import fig6_block, runs_block
 from frl.report.runs import RunDataError, export_run, load_run
 from frl.report.stats import Estimate
 from frl.reproduce import ExportRun, export_finished, export_if_stale
@@ -197,6 +197,16 @@ def test_fig3_yardsticks_are_those_tested_with_the_paper_reward(tmp_path):
     yardsticks = aggregate.fig3_yardsticks(collect(tmp_path))
 
     assert yardsticks["oracle"].metrics["average"]["average_travel_time"].mean == 44.0
+
+
+def test_the_runs_table_lists_fig6_by_interval_not_by_name(tmp_path):
+    for interval in (1000, 250, 500):
+        make_run(tmp_path / "fig6" / f"interval{interval}-seed0", "fedavg", 0, interval=interval)
+
+    text = runs_block(collect(tmp_path))
+
+    rows = [line.split(" | ")[1] for line in text.splitlines() if line.startswith("| fig6 |")]
+    assert rows == ["interval250-seed0", "interval500-seed0", "interval1000-seed0"]
 
 
 def test_fig6_names_a_best_interval_only_over_the_same_seeds():

@@ -487,7 +487,8 @@ def runs_block(collection: Collection) -> str:
     walls: list[float] = []
     commits: set[str] = set()
     for sweep, runs in sorted(collection.runs.items()):
-        for run in sorted(runs, key=lambda r: r.name):
+        # by interval first: by name alone, "interval1000" sorts before "interval250"
+        for run in sorted(runs, key=lambda r: (r.interval, r.name)):
             wall = run.wall_time_s
             if wall is not None:
                 walls.append(wall)
