@@ -4,11 +4,11 @@ claims, yardstick and Table II blocks, on synthetic runs with hand-computed numb
 import math
 
 import pytest
-from report_helpers import evaluation, make_run
+from report_helpers import TASKS, evaluation, make_run
 
 from frl.report.aggregate import CurveSettings
 from frl.report.build import build_report
-from frl.report.claims import fig4_fig5_claims, paired, verdict
+from frl.report.claims import fig4_fig5_claims, fig6_claims, paired, verdict
 from frl.report.runs import load_run
 from frl.report.stats import Estimate
 
@@ -38,6 +38,28 @@ def test_differences_are_paired_over_the_seeds_both_hold():
     assert difference.n == 3 and difference.mean == pytest.approx(2.0)
     assert difference.half_width == pytest.approx(T2 * 1.0 / math.sqrt(3), rel=1e-5)
     assert paired({0: 1.0}, {1: 1.0}) is None
+
+
+def test_fig6_takes_the_best_other_interval_seed_by_seed(tmp_path):
+    # Interval 250 has the higher mean over its own seeds (5 against 4), but seed for seed
+    # interval 2,500 comes closer to 2,000: its one seed beats 2,000 there by 2.
+    finals = {2000: {0: 8.0, 1: 2.0, 2: 5.0}, 250: {0: 9.0, 1: 1.0}, 2500: {1: 4.0}}
+    runs: dict[int, list] = {}
+    for interval, by_seed in finals.items():
+        for seed, final in by_seed.items():
+            episodes = {f"client{i}_{t}": [(10, final), (20, final)] for i, t in enumerate(TASKS)}
+            path = make_run(tmp_path / f"interval{interval}-seed{seed}", "fedavg", seed,
+                            interval=interval, episodes=episodes)  # fmt: skip
+            runs.setdefault(interval, []).append(load_run(path))
+
+    (claim,) = fig6_claims(runs, SETTINGS)
+
+    assert claim.note == "best other interval: 2,500, over seeds 1"
+    assert claim.ours.mean == pytest.approx(-2.0) and claim.verdict == "one seed: no interval"
+    del runs[2500]
+    (claim,) = fig6_claims(runs, SETTINGS)
+    assert claim.note == "best other interval: 250, over seeds 0, 1"
+    assert claim.ours.mean == pytest.approx(0.0) and claim.ours.n == 2
 
 
 def _with_yardstick(table: dict, reward: float, collisions: float) -> dict:
