@@ -199,6 +199,34 @@ def test_fig3_yardsticks_are_those_tested_with_the_paper_reward(tmp_path):
     assert yardsticks["oracle"].metrics["average"]["average_travel_time"].mean == 44.0
 
 
+def test_fig6_sets_each_interval_beside_full_throttle_on_its_own_seeds(tmp_path):
+    # Full throttle differs by seed (its traffic), so the gap is taken seed by seed.
+    for seed, tested, blind in ((0, 5.0, 3.0), (1, 5.5, 4.0)):
+        table = evaluation(tested, 0.1, 40.0)
+        table["yardsticks"] = {
+            "full_throttle": evaluation(blind, 0.2, 30.0),
+            "oracle": evaluation(6.5, 0.0, 44.0),
+        }
+        run = tmp_path / "fig6" / f"interval500-seed{seed}"
+        make_run(run, "fedavg", seed, interval=500, evaluation=table)
+    make_run(tmp_path / "fig6" / "interval250-seed0", "fedavg", 0, interval=250)  # untested
+    collection = collect(tmp_path)
+    out = tmp_path / "results.md"
+
+    points = {p.interval: p for p in aggregate.fig6(collection, SETTINGS)}
+    written = build_report(tmp_path, out, settings=SETTINGS)
+
+    gap = points[500].over_full_throttle
+    assert (gap.mean, gap.half_width) == pytest.approx((1.75, T1 * 0.5 / 2))
+    assert points[250].over_full_throttle is None
+    yardsticks = aggregate.fig6_yardsticks(collection)
+    assert yardsticks["full_throttle"].seeds == [0, 1]
+    text = out.read_text()
+    assert f"| 1.75 ± {T1 * 0.5 / 2:.2f} |" in text
+    assert "full throttle 3.50 ± " in text and "oracle 6.50 ± 0.00" in text
+    assert written["fig6"].exists()
+
+
 def test_the_runs_table_lists_fig6_by_interval_not_by_name(tmp_path):
     for interval in (1000, 250, 500):
         make_run(tmp_path / "fig6" / f"interval{interval}-seed0", "fedavg", 0, interval=interval)

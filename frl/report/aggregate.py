@@ -225,6 +225,8 @@ class IntervalPoint:
     final_reward: Estimate
     test_reward: Estimate | None
     total_bytes: Estimate | None
+    over_full_throttle: Estimate | None = None
+    """Test reward minus full throttle's, seed by seed (each run's own yardstick)."""
 
 
 def fig6_runs(collection: Collection) -> dict[int, tuple[list[RunRecord], bool]]:
@@ -249,6 +251,7 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
         finals = [float(reward_curve(r, settings.episode_window)[-1]) for r in runs]
         finals = [v for v in finals if np.isfinite(v)]
         tests = [r.evaluation["average"]["average_reward"] for r in runs if r.evaluation]
+        gaps = [_over_full_throttle(r) for r in runs]
         total_bytes = [r.results["communication"].get("total_bytes") for r in runs]
         points.append(
             IntervalPoint(
@@ -258,9 +261,26 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
                 final_reward=mean_ci(finals) if finals else Estimate(float("nan"), None, 0),
                 test_reward=_estimate(tests),
                 total_bytes=_estimate(total_bytes),
+                over_full_throttle=_estimate(gaps),
             )
         )
     return points
+
+
+def _over_full_throttle(run: RunRecord) -> float | None:
+    """The run's average test reward minus that of full throttle on the same seed and
+    traffic; None if it was not tested beside full throttle."""
+    evaluation = run.evaluation or {}
+    blind = (evaluation.get("yardsticks") or {}).get("full_throttle")
+    if not blind or "average" not in evaluation:
+        return None
+    return evaluation["average"]["average_reward"] - blind["average"]["average_reward"]
+
+
+def fig6_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
+    """The yardsticks of every run Fig. 6 draws (:func:`fig6_runs`), over their seeds."""
+    runs = [run for interval_runs, _ in fig6_runs(collection).values() for run in interval_runs]
+    return yardsticks_of(runs)
 
 
 # --------------------------------------------------------------------- Fig. 3

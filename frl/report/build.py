@@ -63,6 +63,7 @@ def build_report(
         return plots.relative(path, out.parent)
 
     intervals = aggregate.fig6(collection, settings)
+    fig6_yardsticks = aggregate.fig6_yardsticks(collection)
     rewards = aggregate.fig3(collection)
     fig3_yardsticks = aggregate.fig3_yardsticks(collection)
     blocks = {
@@ -79,7 +80,10 @@ def build_report(
         "fig6": markdown.fig6_block(
             intervals,
             settings,
-            image("fig6", lambda p: plots.plot_fig6(intervals, settings, p)) if intervals else None,
+            image("fig6", lambda p: plots.plot_fig6(intervals, settings, p, fig6_yardsticks))
+            if intervals
+            else None,
+            fig6_yardsticks,
         ),
         "runs": markdown.runs_block(collection),
     }

@@ -360,31 +360,34 @@ def fig5_block(
     return text
 
 
-def fig6_block(points: list[IntervalPoint], settings: CurveSettings, image: str | None) -> str:
+def fig6_block(
+    points: list[IntervalPoint],
+    settings: CurveSettings,
+    image: str | None,
+    yardsticks: dict[str, EvalSummary] | None = None,
+) -> str:
     if not points:
         return f"_{NOT_RUN}_ (needs `fig6/` runs or FedAvg runs in `fig4/`)."
     by_interval = {p.interval: p for p in points}
+    # Runs tested before the yardsticks existed (the first edition) have no gap to show.
+    gaps = any(p.over_full_throttle is not None for p in points)
     rows = []
     for interval in sorted(set(PAPER_FIG6_INTERVALS) | set(by_interval)):
         paper = f"{PAPER_FIG6_BEST[1]} (best)" if interval == PAPER_FIG6_BEST[0] else "–"
         p = by_interval.get(interval)
         if p is None:
-            rows.append([f"{interval:,}", NOT_RUN, "", "", "", paper])
+            rows.append([f"{interval:,}", NOT_RUN, "", "", *([""] * gaps), "", paper])
             continue
         mb = "–" if p.total_bytes is None else f"{p.total_bytes.mean / 1e6:,.1f}"
         seeds = _seeds(p.seeds) + (" (fig4)" if p.borrowed else "")
-        rows.append([f"{interval:,}", seeds, fmt(p.final_reward), fmt(p.test_reward), mb, paper])
-    text = _image(image, "Fig. 6") + table(
-        [
-            "interval",
-            "seeds",
-            "final training reward",
-            "test reward",
-            "communication (MB)",
-            "paper",
-        ],
-        rows,
-    )
+        gap = [fmt(p.over_full_throttle)] * gaps
+        rows.append(
+            [f"{interval:,}", seeds, fmt(p.final_reward), fmt(p.test_reward), *gap, mb, paper]
+        )
+    header = ["interval", "seeds", "final training reward", "test reward"]
+    header += ["test reward - full throttle (same seeds)"] * gaps
+    text = _image(image, "Fig. 6") + table([*header, "communication (MB)", "paper"], rows)
+    text += yardstick_returns(yardsticks)
     finite = [p for p in points if np.isfinite(p.final_reward.mean)]
     if len(finite) < 2:  # a best of one is no finding
         return text

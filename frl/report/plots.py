@@ -153,8 +153,14 @@ def plot_fig5(
     return _save(figure, path)
 
 
-def plot_fig6(points: list[IntervalPoint], settings: CurveSettings, path: Path) -> Path:
-    """FedAvg reward against the aggregation interval; communication on a second axis."""
+def plot_fig6(
+    points: list[IntervalPoint],
+    settings: CurveSettings,
+    path: Path,
+    yardsticks: dict[str, EvalSummary] | None = None,
+) -> Path:
+    """FedAvg reward against the aggregation interval, each yardstick's average test
+    return (same seeds) as a reference line; communication on a second axis."""
     plt = _pyplot()
     figure, axis = plt.subplots(figsize=(7.5, 4.5))
     intervals = np.array([p.interval for p in points], dtype=float)
@@ -182,6 +188,7 @@ def plot_fig6(points: list[IntervalPoint], settings: CurveSettings, path: Path) 
             color="tab:olive",
             label="test reward",
         )
+    _yardstick_lines(axis, yardsticks, "average_reward")
     axis.set(xscale="log", xlabel="aggregation interval (steps)", ylabel="average reward")
     # Slanted: on a log axis 2,000 and 2,500 sit too close for upright labels.
     axis.set_xticks(intervals, [f"{int(i):,}" for i in intervals], rotation=45, ha="right")
@@ -193,14 +200,22 @@ def plot_fig6(points: list[IntervalPoint], settings: CurveSettings, path: Path) 
         intervals,
         cost / 1e6,
         marker="^",
-        color="tab:purple",
+        color="tab:brown",
         linestyle=":",
         label="communication (MB, up + down)",
     )
     second.set(ylabel="communication cost (MB)", yscale="log")
     lines = axis.get_legend_handles_labels()
     more = second.get_legend_handles_labels()
-    axis.legend(lines[0] + more[0], lines[1] + more[1], loc="lower center", fontsize=8)
+    # Below the axes: inside, it hides points wherever the curves happen to fall.
+    axis.legend(
+        lines[0] + more[0],
+        lines[1] + more[1],
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.3),
+        ncol=2,
+        fontsize=8,
+    )
     axis.set_title("Fig. 6: FedAvg-DDPG vs aggregation interval (mean, 95% CI)")
     return _save(figure, path)
 
