@@ -8,7 +8,8 @@ from report_helpers import TASKS, evaluation, make_run
 
 from frl.report.aggregate import CurveSettings
 from frl.report.build import build_report
-from frl.report.claims import fig4_fig5_claims, fig6_claims, paired, verdict
+from frl.report.claims import fig4_fig5_claims, fig6_claims, verdict
+from frl.report.measures import paired
 from frl.report.runs import load_run
 from frl.report.stats import Estimate
 

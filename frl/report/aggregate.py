@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from frl.report.collect import Collection
+from frl.report.measures import paired, per_seed, task_metrics, test_metric, yardstick_metric
 from frl.report.runs import RunRecord
 from frl.report.stats import Estimate, band, episode_return_curve, first_crossing, mean_ci
 from frl.report.stats import moving_average as _moving_average
@@ -251,7 +252,6 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
         finals = [float(reward_curve(r, settings.episode_window)[-1]) for r in runs]
         finals = [v for v in finals if np.isfinite(v)]
         tests = [r.evaluation["average"]["average_reward"] for r in runs if r.evaluation]
-        gaps = [_over_full_throttle(r) for r in runs]
         total_bytes = [r.results["communication"].get("total_bytes") for r in runs]
         points.append(
             IntervalPoint(
@@ -261,20 +261,13 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
                 final_reward=mean_ci(finals) if finals else Estimate(float("nan"), None, 0),
                 test_reward=_estimate(tests),
                 total_bytes=_estimate(total_bytes),
-                over_full_throttle=_estimate(gaps),
+                over_full_throttle=paired(
+                    per_seed(runs, test_metric("average_reward")),
+                    per_seed(runs, yardstick_metric("full_throttle", "average_reward")),
+                ),
             )
         )
     return points
-
-
-def _over_full_throttle(run: RunRecord) -> float | None:
-    """The run's average test reward minus that of full throttle on the same seed and
-    traffic; None if it was not tested beside full throttle."""
-    evaluation = run.evaluation or {}
-    blind = (evaluation.get("yardsticks") or {}).get("full_throttle")
-    if not blind or "average" not in evaluation:
-        return None
-    return evaluation["average"]["average_reward"] - blind["average"]["average_reward"]
 
 
 def fig6_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
@@ -362,12 +355,6 @@ def _fig3_order(key: tuple[str, float, float]) -> tuple[int, tuple[str, float, f
         if key[0] == name and np.isclose(key[1], alpha) and np.isclose(key[2], lam):
             return index, key
     return len(FIG3_SETTINGS), key
-
-
-def task_metrics(evaluation: dict[str, Any], task: str) -> dict[str, Any] | None:
-    if task == "average":
-        return evaluation.get("average")
-    return evaluation.get("per_task", {}).get(task)
 
 
 def _estimate(values: list[Any]) -> Estimate | None:

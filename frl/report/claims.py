@@ -10,7 +10,6 @@ differences are.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,14 +23,18 @@ from frl.report.aggregate import (
     fig6_runs,
     group,
     reward_curve,
-    task_metrics,
 )
 from frl.report.collect import Collection
+from frl.report.measures import (
+    Metric,
+    PerSeed,
+    paired,
+    per_seed,
+    test_metric,
+    yardstick_metric,
+)
 from frl.report.runs import RunRecord
 from frl.report.stats import Estimate, first_crossing, mean_ci
-
-PerSeed = dict[int, float]
-Metric = Callable[[RunRecord], float | None]
 
 
 @dataclass(frozen=True)
@@ -70,34 +73,6 @@ def verdict(difference: Estimate | None, expected_sign: int) -> str:
     if significant:
         return "holds (significant)" if same else "opposite (significant)"
     return "same direction, not significant" if same else "opposite direction, not significant"
-
-
-def per_seed(runs: list[RunRecord], metric: Metric) -> PerSeed:
-    values = {run.seed: metric(run) for run in runs}
-    return {seed: float(v) for seed, v in values.items() if v is not None and math.isfinite(v)}
-
-
-def paired(a: PerSeed, b: PerSeed) -> Estimate | None:
-    """Mean and 95% interval of ``a - b`` over the seeds both hold; None if none."""
-    seeds = sorted(set(a) & set(b))
-    return mean_ci([a[s] - b[s] for s in seeds]) if seeds else None
-
-
-# ------------------------------------------------------------------ metrics
-def test_metric(name: str, task: str = "average") -> Metric:
-    def read(run: RunRecord) -> float | None:
-        row = task_metrics(run.evaluation or {}, task)
-        return None if row is None else row.get(name)
-
-    return read
-
-
-def yardstick_metric(yardstick: str, name: str) -> Metric:
-    def read(run: RunRecord) -> float | None:
-        table = ((run.evaluation or {}).get("yardsticks") or {}).get(yardstick) or {}
-        return (table.get("average") or {}).get(name)
-
-    return read
 
 
 def final_training_reward(settings: CurveSettings) -> Metric:
