@@ -1,21 +1,30 @@
-"""Milliseconds per DDPG training step at the paper's sizes, sparse vs dense first layers.
+"""Milliseconds per DDPG training step: frl at each precision beside Stable-Baselines3.
 
-One training step = ``act`` + ``observe`` + ``update`` (one gradient step, batch 256) on
-the 26 x 18 x 3 grid observation with realistic scenes (a few vehicles plus the ego),
-hidden [512, 512, 256, 64], after the buffer is filled past ``learning_starts``. Also
-prints the replay buffer's memory for 100,000 grid transitions.
+One training step = act + observe + update (one gradient step, batch 256) at the paper's
+sizes: the 26 x 18 x 3 grid, hidden [512, 512, 256, 64], after ``learning_starts``. Every
+agent replays the same scenes, recorded from the intersection (all three tasks, the ego
+driving held random accelerations so that it waits, crosses, collides and arrives), so
+the sparse first layer sees the sparsity it meets in training.
 
-    python benchmarks/agent_speed.py [--steps 300] [--dense-steps 100] [--profile]
-        [--option n_step=1 ...]
+Stable-Baselines3's DDPG runs at Table II's settings on the same scenes, in the same
+process and on the same threads: ``pip install -c constraints.txt -e '.[bench]'``
+(Stable-Baselines3 is never a dependency of frl itself). Without it the script prints
+frl's figures and says how to add the comparison.
 
-``--option KEY=VALUE`` sets a DDPGConfig field (repeatable), e.g. ``--option n_step=1``
-for the paper's one-step targets against the default agent.
+    python benchmarks/agent_speed.py [--blocks 16] [--threads N] [--profile]
+        [--precisions float32,bf16] [--option n_step=1 ...] [--dense] [--skip-sb3]
+
+``--option KEY=VALUE`` sets a DDPGConfig field of the frl agents (repeatable). frl's
+rows are Table II's agent (``agent=ddpg-paper``: one-step targets) and frl's default
+agent (5-step targets, held warm-up actions) at its default precision.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -23,142 +32,283 @@ from cpu_settings import configure_cpu_training  # beside this script
 from gymnasium import spaces
 
 from frl.agents import DDPG, DDPGConfig, ReplayBuffer
+from frl.agents.precision import has_native_bf16, resolve_precision
+from frl.envs import TASKS, IntersectionEnv
 
 GRID_SHAPE = (26, 18, 3)
+TABLE_II = {"n_step": 1, "warmup_hold_steps": 1.0}
+"""What frl's default agent adds to Table II, switched off (``agent=ddpg-paper``)."""
+BLOCK = 25
 
 
-class SyntheticScenes:
-    """Grid observations shaped like the intersection's: 4-8 vehicles plus the ego.
+class RecordedScenes:
+    """Observations, terminations and rewards recorded from the intersection."""
 
-    Each occupied cell holds [speed / 20, relative heading / 90 deg, 1]; cross traffic
-    moves at +-90 degrees, a few vehicles share the ego's heading (heading 0, so only two
-    non-zeros), and the ego fills its own cell.
-    """
+    def __init__(self, steps_per_task: int = 800, seed: int = 0) -> None:
+        rng = np.random.default_rng(seed)
+        observations, ends = [], []
+        for task in TASKS:
+            env = IntersectionEnv(task=task)
+            obs, _ = env.reset(seed=seed)
+            action = np.zeros(1, np.float32)
+            for _ in range(steps_per_task):
+                if rng.random() < 1 / 20:  # held actions, as frl's warm-up drives
+                    action = rng.uniform(-1, 1, size=1).astype(np.float32)
+                next_obs, _, terminated, truncated, _ = env.step(action)
+                observations.append(obs)
+                ends.append(terminated)
+                obs = next_obs
+                if terminated or truncated:
+                    obs, _ = env.reset()
+            env.close()
+        self.observations = np.stack(observations)
+        self.terminated = np.array(ends)
+        self.rewards = rng.normal(0.0, 0.1, size=len(ends)).astype(np.float32)
 
-    def __init__(self, rng: np.random.Generator) -> None:
-        self.rng = rng
+    @property
+    def mean_nonzeros(self) -> float:
+        return float(np.count_nonzero(self.observations) / len(self.observations))
 
-    def __call__(self) -> np.ndarray:
-        grid = np.zeros(GRID_SHAPE, dtype=np.float32)
-        n = self.rng.integers(4, 9)
-        cells = self.rng.choice(GRID_SHAPE[0] * GRID_SHAPE[1], size=n, replace=False)
-        for cell in cells:
-            i, j = divmod(int(cell), GRID_SHAPE[1])
-            grid[i, j] = (self.rng.uniform(0, 1), self.rng.choice([-1.0, 0.0, 1.0, 2.0]), 1.0)
-        grid[13, 1] = (self.rng.uniform(0, 1), 0.0, 1.0)  # the ego
-        return grid
+    def replay(self) -> Callable[[], tuple[np.ndarray, float, bool]]:
+        """A cursor of its own: each call gives the next scene, the reward for reaching it
+        and whether it ends the episode, round and round."""
+        position = -1
+
+        def step() -> tuple[np.ndarray, float, bool]:
+            nonlocal position
+            position = (position + 1) % len(self.observations)
+            i = position
+            return self.observations[i], float(self.rewards[i]), bool(self.terminated[i])
+
+        return step
 
 
-def time_agent(
-    sparse: bool, steps: int, warmup: int, profile: bool = False, options: dict | None = None
-) -> tuple[float, float]:
-    """Mean and best-block ms per act + observe + update, after ``learning_starts`` and
-    ``warmup`` steps."""
-    obs_space = spaces.Box(-2.0, 2.0, GRID_SHAPE, dtype=np.float32)
-    act_space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
-    config = DDPGConfig.from_dict(
-        {**DDPGConfig().to_dict(), **(options or {}), "sparse_input": sparse}
-    )
-    agent = DDPG(obs_space, act_space, config, seed=0)
-    scenes = SyntheticScenes(np.random.default_rng(1))
-    rng = np.random.default_rng(2)
-    obs = scenes()
+class Learner:
+    """One agent learning on the replayed scenes, a block of :data:`BLOCK` steps at a time,
+    so that the agents of one run take turns and share the machine's ups and downs."""
 
-    def step() -> None:
-        nonlocal obs
-        action = agent.act(obs, explore=True)
-        next_obs = scenes()
-        agent.observe(obs, action, float(rng.normal()), next_obs, bool(rng.random() < 0.02))
+    label: str
+
+    def block(self) -> float:
+        """Run one block; milliseconds per training step."""
+        raise NotImplementedError
+
+
+class FrlLearner(Learner):
+    """An frl DDPG: act + observe + update per step, after ``learning_starts`` + 50."""
+
+    def __init__(self, label: str, config: DDPGConfig, scenes: RecordedScenes) -> None:
+        self.label = label
+        obs_space = spaces.Box(-2.0, 2.0, GRID_SHAPE, dtype=np.float32)
+        act_space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
+        self.agent = DDPG(obs_space, act_space, config, seed=0)
+        self.next_scene = scenes.replay()
+        self.obs = self.next_scene()[0]
+        for _ in range(config.learning_starts + 50):
+            self.step()
+
+    def step(self) -> None:
+        agent = self.agent
+        action = agent.act(self.obs, explore=True)
+        next_obs, reward, terminated = self.next_scene()
+        agent.observe(self.obs, action, reward, next_obs, terminated)
         agent.update()
-        obs = next_obs
+        self.obs = next_obs
+        if terminated:
+            agent.episode_start()
 
-    for _ in range(agent.config.learning_starts + warmup):
-        step()
-    assert agent.num_updates >= warmup
-    if profile:
-        from torch.profiler import ProfilerActivity
-        from torch.profiler import profile as torch_profile
+    def block(self) -> float:
+        started = time.perf_counter()
+        for _ in range(BLOCK):
+            self.step()
+        return (time.perf_counter() - started) / BLOCK * 1e3
 
-        with torch_profile(activities=[ProfilerActivity.CPU]) as prof:
+    def profile(self) -> str:
+        from torch.profiler import ProfilerActivity, profile
+
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
             for _ in range(50):
-                step()
-        print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=25))
-    # Blocks of 25 steps: the mean is the figure; the best block shows the speed without
-    # interference from other processes on a shared machine.
-    blocks = []
-    for _ in range(max(1, steps // 25)):
-        start = time.perf_counter()
-        for _ in range(25):
-            step()
-        blocks.append((time.perf_counter() - start) / 25 * 1e3)
-    return float(np.mean(blocks)), float(np.min(blocks))
+                self.step()
+        return prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=25)
 
 
-def buffer_megabytes(transitions: int = 100_000) -> tuple[float, int]:
-    """Actual array bytes of a full 100k-transition grid buffer, and its row width."""
-    config = DDPGConfig()
+class StableBaselines3Learner(Learner):
+    """Stable-Baselines3's DDPG at Table II's settings on the same scenes. A step is its
+    collect (predict, env step, buffer add) and train (one gradient step), timed between
+    consecutive steps inside ``learn``; each block is one ``learn`` call of BLOCK + 1 steps,
+    so its set-up is outside the timed intervals."""
+
+    def __init__(self, scenes: RecordedScenes) -> None:
+        import gymnasium as gym
+        import stable_baselines3
+        from stable_baselines3 import DDPG as SB3DDPG
+        from stable_baselines3.common.callbacks import BaseCallback
+        from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise
+
+        self.label = f"Stable-Baselines3 {stable_baselines3.__version__} DDPG, Table II"
+        next_scene = scenes.replay()
+
+        class ReplayedEnv(gym.Env):
+            observation_space = spaces.Box(-2.0, 2.0, GRID_SHAPE, dtype=np.float32)
+            action_space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
+
+            def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple:
+                super().reset(seed=seed)
+                return next_scene()[0], {}
+
+            def step(self, action: np.ndarray) -> tuple:
+                obs, reward, terminated = next_scene()
+                return obs, reward, terminated, False, {}
+
+        class Clock(BaseCallback):
+            def __init__(self) -> None:
+                super().__init__()
+                self.stamps: list[float] = []
+
+            def _on_step(self) -> bool:
+                self.stamps.append(time.perf_counter())
+                return True
+
+        self.clock = Clock()
+        self.model = SB3DDPG(
+            "MlpPolicy",
+            ReplayedEnv(),
+            learning_rate=1e-4,
+            buffer_size=100_000,
+            learning_starts=1_000,
+            batch_size=256,
+            tau=0.001,
+            gamma=0.99,
+            train_freq=1,
+            gradient_steps=1,
+            action_noise=OrnsteinUhlenbeckActionNoise(np.zeros(1), 0.3 * np.ones(1), theta=0.15),
+            policy_kwargs={"net_arch": [512, 512, 256, 64]},
+            seed=0,
+            device="cpu",
+        )
+        self.model.learn(1_050)
+
+    def block(self) -> float:
+        self.clock.stamps.clear()
+        self.model.learn(BLOCK + 1, callback=self.clock, reset_num_timesteps=False)
+        return float(np.mean(np.diff(self.clock.stamps))) * 1e3
+
+
+def buffer_megabytes(scenes: RecordedScenes, transitions: int = 100_000) -> tuple[float, int]:
+    """Array bytes of a full 100k-transition grid buffer of these scenes, and its row width."""
     buffer = ReplayBuffer(
         transitions,
         GRID_SHAPE,
         1,
         np.random.default_rng(0),
         sparse=True,
-        sparse_width=config.sparse_capacity,
+        sparse_width=DDPGConfig().sparse_capacity,
     )
-    scenes = SyntheticScenes(np.random.default_rng(3))
-    obs = scenes()
+    next_scene = scenes.replay()
+    obs = next_scene()[0]
     for _ in range(transitions):
-        next_obs = scenes()
-        buffer.add(obs, np.zeros(1), 0.0, next_obs, False)
+        next_obs, reward, terminated = next_scene()
+        buffer.add(obs, np.zeros(1), reward, next_obs, terminated)
         obs = next_obs
     return buffer.nbytes / 1e6, buffer._obs.width
 
 
+def parse_options(parser: argparse.ArgumentParser, items: list[str]) -> dict:
+    defaults = DDPGConfig().to_dict()
+    options = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in defaults or not value:
+            parser.error(f"--option {item!r}: expected KEY=VALUE with a DDPGConfig field")
+        kind = type(defaults[key])
+        options[key] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
+    return options
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--dense-steps", type=int, default=100)
-    parser.add_argument("--warmup", type=int, default=50)
-    parser.add_argument("--threads", type=int, default=None)
-    parser.add_argument("--profile", action="store_true")
-    parser.add_argument("--skip-dense", action="store_true")
+    parser.add_argument("--blocks", type=int, default=16, help=f"timed blocks of {BLOCK} steps")
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (all cores)")
+    parser.add_argument("--precisions", default="float32,bf16")
+    parser.add_argument("--profile", action="store_true", help="torch profile of frl's steps")
+    parser.add_argument("--dense", action="store_true", help="also a dense first layer")
+    parser.add_argument("--skip-sb3", action="store_true")
     parser.add_argument("--skip-buffer", action="store_true")
     parser.add_argument(
         "--option", action="append", default=[], metavar="KEY=VALUE", help="a DDPGConfig field"
     )
     args = parser.parse_args()
-    options = {}
-    for item in args.option:
-        key, _, value = item.partition("=")
-        if key not in DDPGConfig().to_dict() or not value:
-            parser.error(f"--option {item!r}: expected KEY=VALUE with a DDPGConfig field")
-        kind = type(DDPGConfig().to_dict()[key])
-        options[key] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
+    options = parse_options(parser, args.option)
+    precisions = args.precisions.split(",")
+    for name in precisions:
+        resolve_precision(name, "cpu")  # an unknown name fails here, before any timing
+    with_sb3 = not args.skip_sb3 and importlib.util.find_spec("stable_baselines3") is not None
 
     threads = configure_cpu_training(args.threads)
+    scenes = RecordedScenes()
+    native = has_native_bf16("cpu")
     print(
-        f"torch {torch.__version__}, {threads} threads, "
-        f"obs {GRID_SHAPE}, hidden [512, 512, 256, 64]"
+        f"torch {torch.__version__}, {threads} threads, native bf16: "
+        f"{'yes' if native else 'no (bf16 is emulated)'}; {len(scenes.observations)} "
+        f"recorded scenes, {scenes.mean_nonzeros:.1f} non-zeros each; blocks of {BLOCK} "
+        "steps, the agents taking turns"
     )
     if options:
         print(f"options: {options}")
-    sparse_ms, sparse_best = time_agent(True, args.steps, args.warmup, args.profile, options)
-    print(
-        f"sparse first layer : {sparse_ms:6.1f} ms/step mean, {sparse_best:5.1f} best block "
-        "(act + observe + update, batch 256)"
-    )
-    if not args.skip_dense:
-        dense_ms, dense_best = time_agent(False, args.dense_steps, args.warmup, options=options)
-        print(
-            f"dense first layer  : {dense_ms:6.1f} ms/step mean, {dense_best:5.1f} best block "
-            "(same agent, sparse_input=False)"
+
+    def config(**fields: object) -> DDPGConfig:
+        return DDPGConfig(**{**DDPGConfig().to_dict(), **fields})
+
+    learners: list[Learner] = [
+        FrlLearner(
+            f"frl, Table II agent, {name}", config(**TABLE_II, **options, precision=name), scenes
         )
-        print(f"speed-up           : {dense_ms / sparse_ms:6.2f}x")
+        for name in precisions
+    ]
+    default = config(**options)
+    used = resolve_precision(default.precision, "cpu")
+    resolved = f" ({used})" if used != default.precision else ""
+    learners.append(
+        FrlLearner(f"frl, default agent, {default.precision}{resolved}", default, scenes)
+    )
+    if args.dense:
+        dense = config(**TABLE_II, **options, sparse_input=False)
+        learners.append(FrlLearner("frl, Table II agent, dense first layer", dense, scenes))
+    if with_sb3:
+        learners.append(StableBaselines3Learner(scenes))
+    if args.profile:
+        for learner in learners:
+            if isinstance(learner, FrlLearner):
+                print(learner.label)
+                print(learner.profile())
+
+    times: dict[str, list[float]] = {learner.label: [] for learner in learners}
+    for _ in range(args.blocks):
+        for learner in learners:
+            times[learner.label].append(learner.block())
+    for label, blocks in times.items():
+        print(
+            f"{label:<46} {np.median(blocks):6.1f} ms/step "
+            f"(median of {len(blocks)} blocks; best {min(blocks):.1f})"
+        )
+
+    if with_sb3:
+        reference = float(np.median(times[learners[-1].label]))
+        print("speed-up over Stable-Baselines3 per training step (same scenes, same threads):")
+        for learner in learners[:-1]:
+            ratio = reference / float(np.median(times[learner.label]))
+            print(f"  {learner.label:<44} {ratio:5.2f}x")
+    elif not args.skip_sb3:
+        print(
+            "Stable-Baselines3 is not installed, so there is no side-by-side figure: "
+            "pip install -c constraints.txt -e '.[bench]'"
+        )
+
     if not args.skip_buffer:
-        megabytes, width = buffer_megabytes()
+        megabytes, width = buffer_megabytes(scenes)
         dense_mb = 100_000 * 2 * np.prod(GRID_SHAPE) * 4 / 1e6
         print(
-            f"replay buffer      : {megabytes:6.1f} MB for 100,000 grid transitions "
+            f"replay buffer: {megabytes:.1f} MB for 100,000 grid transitions "
             f"(exact, {width} non-zeros/row; dense float32 would be {dense_mb:.0f} MB)"
         )
 

@@ -155,7 +155,9 @@ class TrainSchema:
     eval_episodes: int = 100
     """Test episodes per task after training (Section IV.B); 0 skips evaluation. Tests
     run on the training traffic (``env.scenario``, set by the ``traffic`` group)."""
-    yardsticks: list[str] = field(default_factory=lambda: ["full_throttle", "oracle"])
+    yardsticks: list[str] = field(
+        default_factory=lambda: ["full_throttle", "gap_acceptance", "oracle"]
+    )
     """Yardstick policies tested on the same seeds beside the model (frl.policies)."""
     progress: bool = True
     """Progress bar; always off in multirun."""

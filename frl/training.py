@@ -17,6 +17,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from frl import run_directory as rundir
+from frl.agents.precision import precision_report
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.coordinator import Coordinator
 from frl.federation.tensorboard import TrainingLogger, resume_purge_step
@@ -70,6 +71,14 @@ def train(
     else:
         resolved = cfg
     progress = bool(_get(cfg, "progress", True)) and not _is_multirun()
+    precision = precision_report(settings.agent.precision, settings.device)
+    log.info(
+        "agent precision: %s (agent.precision=%s; native bf16 on this %s: %s)",
+        precision["used"],
+        precision["configured"],
+        settings.device,
+        "yes" if precision["native_bf16"] else "no",
+    )
 
     run_dir.mkdir(parents=True, exist_ok=True)
     to_save = (
@@ -152,6 +161,8 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
         "tasks": list(plan.tasks),
         "clients": [spec.name for spec in settings.client_specs()],
         "rounds": state.completed_rounds,
+        # Resolved on the machine that wrote this file; workers on it resolve alike.
+        "agent_precision": precision_report(settings.agent.precision, settings.device),
         "communication": {
             "aggregation": plan.aggregates,
             "targets": plan.targets if plan.aggregates else None,
@@ -263,6 +274,7 @@ def _log_hparams(run_dir: Path, settings: TrainSettings, results: dict[str, Any]
         "tau": agent.tau,
         "learning_starts": agent.learning_starts,
         "noise_sigma": agent.noise_sigma,
+        "precision": results["agent_precision"]["used"],
     }
     metrics = ["train/final_step_reward", "server/bytes_total"]
     if "evaluation" in results:

@@ -3,7 +3,7 @@
 Pendulum episodes end only by the 200-step time limit (truncated, never terminated), so
 learning here also depends on truncated transitions bootstrapping. Seeds 0-5 all reached
 -120 to -270 mean return over the last 10 episodes at this budget; random play scores
-about -1200 and the threshold is -400.
+about -1200 and the threshold is -400. The same bar holds in bf16 (``agent.precision``).
 """
 
 import gymnasium as gym
@@ -16,7 +16,8 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.mark.slow
-def test_learns_pendulum_swing_up() -> None:
+@pytest.mark.parametrize("precision", ["float32", "bf16"])
+def test_learns_pendulum_swing_up(precision: str) -> None:
     steps = 8_000
     config = DDPGConfig(
         hidden_sizes=(64, 64),
@@ -28,6 +29,7 @@ def test_learns_pendulum_swing_up() -> None:
         critic_lr=1e-3,
         noise="gaussian",
         noise_sigma=0.1,  # normalised units: 0.2 N m on Pendulum's [-2, 2] torque
+        precision=precision,  # bf16 runs (emulated, slower) where the CPU lacks it
     )
     env = gym.make("Pendulum-v1")
     agent = DDPG(env.observation_space, env.action_space, config, seed=0)

@@ -70,7 +70,7 @@ def test_each_scheme_trains_logs_and_tests(scheme, tmp_path, capsys):
     assert evaluation["per_task"]["left"]["episodes"] == 2
     assert "travel_time_definition" in evaluation
     assert evaluation["traffic"] == "paper"
-    assert set(evaluation["yardsticks"]) == {"full_throttle", "oracle"}  # the defaults
+    assert list(evaluation["yardsticks"]) == ["full_throttle", "gap_acceptance", "oracle"]
     for table in evaluation["yardsticks"].values():
         assert set(table["per_task"]) == set(evaluation["per_task"])
         assert table["per_task"]["left"]["episodes"] == 2

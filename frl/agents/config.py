@@ -6,12 +6,15 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from frl.agents.precision import PRECISIONS
+
 NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
     "n_step": 1,
     "preactivation_l2": 0.0,
+    "precision": "float32",
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -80,6 +83,11 @@ class DDPGConfig:
     """``"auto"`` picks the sparse path (network and buffer) for obs with this many features."""
     sparse_capacity: int = 64
     """Initial non-zeros stored per observation in the compact buffer; grows, never truncates."""
+    precision: str = "float32"
+    """What the forward and backward passes of updates and acting compute in: ``float32``,
+    ``bf16`` (autocast; weights, optimizer state, targets, output layers and losses stay
+    float32) or ``auto`` (bf16 where the device computes it natively, else float32);
+    see :mod:`frl.agents.precision`."""
 
     def __post_init__(self) -> None:
         hidden = tuple(self.hidden_sizes)
@@ -144,6 +152,10 @@ class DDPGConfig:
         _require(
             self.noise_theta * self.noise_dt < 2,
             "noise_theta * noise_dt must be < 2 for a stable OU process",
+        )
+        _require(
+            self.precision in PRECISIONS,
+            f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}",
         )
         _require(
             self.sparse_input in (True, False, "auto"),

@@ -18,6 +18,7 @@ from frl.agents.functional import hard_update, soft_update, td_target
 from frl.agents.n_step import NStepAccumulator
 from frl.agents.networks import Actor, Critic, init_mlp_
 from frl.agents.noise import generator_state, make_noise, set_generator_state
+from frl.agents.precision import autocast, resolve_precision
 from frl.agents.replay_buffer import Batch, ReplayBuffer
 from frl.agents.sparse_linear import SparseRows
 
@@ -85,6 +86,9 @@ class DDPG:
         self.action_high = action_space.high.astype(np.float64).reshape(-1)
         self.sparse = cfg.use_sparse(self.obs_dim)
         """Networks see :class:`SparseRows` batches (same function, fewer multiply-adds)."""
+        self.precision = resolve_precision(cfg.precision, self.device)
+        """What the forward and backward passes compute in here: ``float32`` or ``bf16``
+        (``DDPGConfig.precision`` resolved for this device)."""
 
         init_seq, noise_seq, buffer_seq, explore_seq = np.random.SeedSequence(self.seed).spawn(4)
         if init_seed is not None:
@@ -153,10 +157,18 @@ class DDPG:
         flat = np.asarray(obs, dtype=np.float32).reshape(1, -1)
         if flat.shape[1] != self.obs_dim:
             raise ValueError(f"expected an observation of shape {self.obs_shape}")
-        x = torch.from_numpy(flat)
         if self.sparse:
-            return SparseRows.from_dense(x).to(self.device)
-        return x.to(self.device)
+            return SparseRows.from_numpy_row(flat).to(self.device)
+        return torch.from_numpy(flat).to(self.device)
+
+    def _autocast(self) -> Any:
+        """The context of every forward pass: bf16 autocast under ``precision`` bf16.
+
+        Optimizer steps stay outside it: autocast caches the bf16 copy of each weight
+        that needs a gradient until the context exits, and a copy cached before a step
+        would be stale after it.
+        """
+        return autocast(self.device, self.precision)
 
     def act(self, obs: Any, explore: bool = True) -> np.ndarray:
         """Action for one observation, float32 and within the action bounds.
@@ -172,7 +184,7 @@ class DDPG:
             action = self._warmup_step()
             self.last_policy_action = np.full(self.action_dim, np.nan)
         else:
-            with torch.no_grad():
+            with torch.no_grad(), self._autocast():
                 action = self.actor(self._flat_obs_tensor(obs))[0].double().cpu().numpy()
             self.last_policy_action = action
             if explore:
@@ -236,13 +248,16 @@ class DDPG:
 
     def _train_step(self, batch: Batch) -> dict[str, Tensor]:
         cfg = self.config
+        with self._autocast():
+            with torch.no_grad():
+                next_q = self.critic_target(batch.next_obs, self.actor_target(batch.next_obs))
+            q = self.critic(batch.obs, batch.actions)
+        # The outputs are float32 (frl.agents.precision.float32_layer): the target and the
+        # losses below are computed in float32 whatever the precision.
         with torch.no_grad():
-            next_q = self.critic_target(batch.next_obs, self.actor_target(batch.next_obs))
             # gamma**k for an n-step transition of k steps (k = 1: the one-step target).
             discount = cfg.gamma**batch.horizons if cfg.n_step > 1 else cfg.gamma
             target_q = td_target(batch.rewards, batch.terminated, next_q, discount)
-
-        q = self.critic(batch.obs, batch.actions)
         critic_loss = F.mse_loss(q, target_q)
         self.critic_optimizer.zero_grad(set_to_none=True)
         critic_loss.backward()
@@ -252,12 +267,15 @@ class DDPG:
         # weight gradients (and none for its sparse first layer), just dQ/da.
         self.critic.requires_grad_(False)
         try:
+            with self._autocast():
+                if cfg.preactivation_l2 > 0:
+                    preactivation = self.actor.preactivation(batch.obs)
+                    q_policy = self.critic(batch.obs, torch.tanh(preactivation))
+                else:
+                    q_policy = self.critic(batch.obs, self.actor(batch.obs))
+            actor_loss = -q_policy.mean()
             if cfg.preactivation_l2 > 0:
-                preactivation = self.actor.preactivation(batch.obs)
-                actor_loss = -self.critic(batch.obs, torch.tanh(preactivation)).mean()
                 actor_loss = actor_loss + cfg.preactivation_l2 * preactivation.square().mean()
-            else:
-                actor_loss = -self.critic(batch.obs, self.actor(batch.obs)).mean()
             self.actor_optimizer.zero_grad(set_to_none=True)
             actor_loss.backward()
         finally:
@@ -280,7 +298,7 @@ class DDPG:
         ).astype(np.float32)
         x = torch.from_numpy(obs)
         inputs = SparseRows.from_dense(x).to(self.device) if self.sparse else x.to(self.device)
-        with torch.no_grad():
+        with torch.no_grad(), self._autocast():
             q = self.critic(inputs, torch.from_numpy(normalised).to(self.device))
         return q.reshape(-1).double().cpu().numpy()
 

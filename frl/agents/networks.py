@@ -8,6 +8,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from frl.agents.precision import float32_layer
 from frl.agents.sparse_linear import InputLinear, SparseRows
 
 FINAL_LAYER_INIT = 3e-3
@@ -54,11 +55,11 @@ class Actor(nn.Module):
         self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, action_dim))
 
     def preactivation(self, obs: Tensor | SparseRows) -> Tensor:
-        """The output layer's value before tanh."""
+        """The output layer's value before tanh (float32, also under autocast)."""
         x = obs
         for layer in self.layers[:-1]:
             x = torch.relu_(layer(x))  # in place: addmm's backward needs only its inputs
-        return self.layers[-1](x)
+        return float32_layer(self.layers[-1], x)
 
     def forward(self, obs: Tensor | SparseRows) -> Tensor:
         return torch.tanh(self.preactivation(obs))
@@ -77,7 +78,8 @@ class Critic(nn.Module):
         self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, 1))
 
     def forward(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
+        """Q-values, float32 (also under autocast)."""
         x = torch.relu_(self.layers[0](obs, action))
         for layer in self.layers[1:-1]:
             x = torch.relu_(layer(x))  # in place: addmm's backward needs only its inputs
-        return self.layers[-1](x).squeeze(-1)
+        return float32_layer(self.layers[-1], x).squeeze(-1)

@@ -74,10 +74,35 @@ class _SparseStore:
     def get(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         counts = self.counts[slots]
         mask = np.arange(self.width) < counts[:, None]
-        indices = self.indices[slots][mask].astype(np.int64)
+        indices = self.indices[slots][mask]
         values = self.values[slots][mask]
         offsets = np.cumsum(counts, dtype=np.int64) - counts
         return indices, values, offsets
+
+    def rows(self, slots: np.ndarray, transposed: bool) -> SparseRows:
+        """The observations at ``slots`` as :class:`SparseRows`, with their transpose
+        (the weight gradient's layout) when ``transposed``."""
+        indices, values, offsets = self.get(slots)
+        by_feature = None
+        if transposed:
+            # NumPy's stable sort of 16-bit keys is a radix sort: about 20 us here against
+            # 50-130 us for torch.argsort on the int64 indices inside backward.
+            order = np.argsort(indices, kind="stable")
+            row_ids = np.repeat(np.arange(len(slots), dtype=np.int64), self.counts[slots])
+            per_feature = np.bincount(indices, minlength=self.num_features)
+            by_feature = SparseRows(
+                torch.from_numpy(row_ids[order]),
+                torch.from_numpy(values[order]),
+                torch.from_numpy(np.cumsum(per_feature) - per_feature),
+                len(slots),
+            )
+        return SparseRows(
+            torch.from_numpy(indices.astype(np.int64)),
+            torch.from_numpy(values),
+            torch.from_numpy(offsets),
+            self.num_features,
+            by_feature,
+        )
 
     def dense(self, slots: np.ndarray) -> np.ndarray:
         indices, values, _ = self.get(slots)
@@ -170,18 +195,14 @@ class ReplayBuffer:
         self.pos = (slot + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
-    def _observations(self, store: Any, slots: np.ndarray, as_sparse: bool) -> Tensor | SparseRows:
+    def _observations(
+        self, store: Any, slots: np.ndarray, as_sparse: bool, transposed: bool = False
+    ) -> Tensor | SparseRows:
         if not self.sparse:
             dense = torch.from_numpy(store[slots])
             return SparseRows.from_dense(dense) if as_sparse else dense
         if as_sparse:
-            indices, values, offsets = store.get(slots)
-            return SparseRows(
-                torch.from_numpy(indices),
-                torch.from_numpy(values),
-                torch.from_numpy(offsets),
-                self.num_features,
-            )
+            return store.rows(slots, transposed)
         return torch.from_numpy(store.dense(slots))
 
     def sample_slots(self, batch_size: int) -> np.ndarray:
@@ -195,8 +216,10 @@ class ReplayBuffer:
         return self.gather(self.sample_slots(batch_size), sparse=sparse, device=device)
 
     def gather(self, slots: np.ndarray, sparse: bool = False, device: Any = "cpu") -> Batch:
-        """The transitions at ``slots`` as a :class:`Batch`."""
-        obs = self._observations(self._obs, slots, sparse)
+        """The transitions at ``slots`` as a :class:`Batch`. Sparse observations come with
+        their transpose (the networks' weight gradients flow through them); next
+        observations only ever meet the target networks, without gradients."""
+        obs = self._observations(self._obs, slots, sparse, transposed=True)
         next_obs = self._observations(self._next_obs, slots, sparse)
         batch = Batch(
             obs,

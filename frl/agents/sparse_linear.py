@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -33,6 +34,11 @@ class SparseRows(NamedTuple):
     """int64 [batch]: where each row starts in ``indices``/``values``."""
     num_features: int
     """Length of each dense row."""
+    by_feature: SparseRows | None = None
+    """The transpose in the same form (one row per feature, its entries the batch rows
+    that hold it, in row order), which the weight gradient needs; :meth:`transposed`
+    computes it when absent. The replay buffer attaches it, computed in NumPy, to the
+    observations that a gradient flows through."""
 
     @property
     def batch_size(self) -> int:
@@ -44,18 +50,35 @@ class SparseRows(NamedTuple):
             self.values.to(device, non_blocking=True),
             self.offsets.to(device, non_blocking=True),
             self.num_features,
+            None if self.by_feature is None else self.by_feature.to(device),
+        )
+
+    def row_ids(self) -> Tensor:
+        """int64 [nnz]: the row each non-zero belongs to."""
+        counts = torch.diff(
+            self.offsets, append=torch.tensor([self.indices.numel()], device=self.offsets.device)
+        )
+        return torch.repeat_interleave(torch.arange(self.batch_size, device=counts.device), counts)
+
+    def transposed(self) -> SparseRows:
+        """:attr:`by_feature`, computed here if the rows do not carry it."""
+        if self.by_feature is not None:
+            return self.by_feature
+        order = torch.argsort(self.indices, stable=True)  # stable: a fixed summation order
+        per_feature = torch.bincount(self.indices, minlength=self.num_features)
+        return SparseRows(
+            self.row_ids()[order],
+            self.values[order],
+            torch.cumsum(per_feature, 0) - per_feature,
+            self.batch_size,
         )
 
     def to_dense(self) -> Tensor:
         """The dense [batch, num_features] float32 tensor these rows encode."""
-        counts = torch.diff(
-            self.offsets, append=torch.tensor([self.indices.numel()], device=self.offsets.device)
-        )
-        rows = torch.repeat_interleave(torch.arange(self.batch_size, device=counts.device), counts)
         dense = torch.zeros(
             self.batch_size, self.num_features, dtype=self.values.dtype, device=self.values.device
         )
-        dense.index_put_((rows, self.indices), self.values, accumulate=True)
+        dense.index_put_((self.row_ids(), self.indices), self.values, accumulate=True)
         return dense
 
     @classmethod
@@ -66,6 +89,18 @@ class SparseRows(NamedTuple):
         offsets = torch.cumsum(counts, 0) - counts
         return cls(cols, dense[rows, cols].float(), offsets, int(dense.shape[1]))
 
+    @classmethod
+    def from_numpy_row(cls, row: np.ndarray) -> SparseRows:
+        """One flat observation as a batch of one row (for acting: no torch ops to build)."""
+        flat = np.asarray(row, dtype=np.float32).reshape(-1)
+        nonzero = np.flatnonzero(flat)
+        return cls(
+            torch.from_numpy(nonzero),
+            torch.from_numpy(flat[nonzero]),
+            torch.zeros(1, dtype=torch.int64),
+            int(flat.size),
+        )
+
 
 class _SparseMatmul(torch.autograd.Function):
     """``rows @ weight_t`` for compressed rows; differentiable in ``weight_t`` only.
@@ -73,42 +108,41 @@ class _SparseMatmul(torch.autograd.Function):
     Forward is ``F.embedding_bag`` (mode ``sum`` with per-sample weights). The weight
     gradient ``rows^T @ grad_out`` is the same kind of gather-and-sum seen from the other
     side: feature ``f``'s gradient row sums ``value * grad_out[row]`` over the non-zeros at
-    ``f``. So backward regroups the non-zeros by feature (a stable sort) and runs one more
-    forward ``embedding_bag`` over the rows of ``grad_out``, which needs no per-non-zero
-    intermediate. Measured alone on the idle 2-core machine (1404 x 512 table, batch 256,
-    ~18 non-zeros a row, 2 threads): 0.27 ms against 0.56 ms for ``index_select`` +
-    ``index_add_`` (a 9.6 MB intermediate), and faster than ``embedding_bag``'s own
-    backward and a COO ``torch.sparse.mm``. Input values get no gradient (observations
-    never need one).
+    ``f``. So backward runs one more forward ``embedding_bag`` over the rows of
+    ``grad_out``, driven by the transposed rows (:meth:`SparseRows.transposed`), which
+    needs no per-non-zero intermediate. Measured alone on the idle 2-core machine
+    (1404 x 512 table, batch 256, ~18 non-zeros a row, 2 threads): 0.27 ms against
+    0.56 ms for ``index_select`` + ``index_add_`` (a 9.6 MB intermediate), and faster than
+    ``embedding_bag``'s own backward and a COO ``torch.sparse.mm``. Input values get no
+    gradient (observations never need one).
     """
 
     @staticmethod
     def forward(
-        ctx: Any, indices: Tensor, values: Tensor, offsets: Tensor, weight_t: Tensor
+        ctx: Any,
+        indices: Tensor,
+        values: Tensor,
+        offsets: Tensor,
+        weight_t: Tensor,
+        transposed: SparseRows,
     ) -> Tensor:
-        ctx.save_for_backward(indices, values, offsets)
-        ctx.table_shape = weight_t.shape
+        ctx.transposed = transposed
         return F.embedding_bag(indices, weight_t, offsets, mode="sum", per_sample_weights=values)
 
     @staticmethod
-    def backward(ctx: Any, grad_out: Tensor) -> tuple[None, None, None, Tensor | None]:
+    def backward(ctx: Any, grad_out: Tensor) -> tuple[Tensor | None, ...]:
         if not ctx.needs_input_grad[3]:
-            return None, None, None, None
-        indices, values, offsets = ctx.saved_tensors
-        counts = torch.diff(offsets, append=offsets.new_tensor([indices.numel()]))
-        rows = torch.repeat_interleave(torch.arange(offsets.numel(), device=counts.device), counts)
-        by_feature = torch.argsort(indices, stable=True)  # stable: a fixed summation order
-        per_feature = torch.bincount(indices, minlength=ctx.table_shape[0])
-        feature_offsets = torch.cumsum(per_feature, 0) - per_feature
+            return None, None, None, None, None
+        by_feature: SparseRows = ctx.transposed
         # Features no row holds form empty bags, which embedding_bag sums to zero rows.
         grad_table = F.embedding_bag(
-            rows[by_feature],
+            by_feature.indices,
             grad_out.contiguous(),
-            feature_offsets,
+            by_feature.offsets,
             mode="sum",
-            per_sample_weights=values[by_feature],
+            per_sample_weights=by_feature.values,
         )
-        return None, None, None, grad_table
+        return None, None, None, grad_table, None
 
 
 class InputLinear(nn.Module):
@@ -166,7 +200,9 @@ class InputLinear(nn.Module):
             if x.num_features != self.in_features:
                 raise ValueError(f"expected {self.in_features} features, got {x.num_features}")
             if torch.is_grad_enabled() and self.weight_t.requires_grad:
-                out = _SparseMatmul.apply(x.indices, x.values, x.offsets, self.weight_t)
+                out = _SparseMatmul.apply(
+                    x.indices, x.values, x.offsets, self.weight_t, x.transposed()
+                )
             else:  # no autograd.Function overhead when nothing needs a gradient
                 out = F.embedding_bag(
                     x.indices, self.weight_t, x.offsets, mode="sum", per_sample_weights=x.values
@@ -177,7 +213,10 @@ class InputLinear(nn.Module):
         if self.extra_weight is not None:
             if extra is None:
                 raise ValueError("this layer needs the extra (action) input")
-            out = torch.addmm(out, extra, self.extra_weight.t())
+            # A rank-``extra_features`` update: float32 costs nothing here, and under
+            # autocast it saves casting ``out`` and both factors to bf16 and back.
+            with torch.autocast(out.device.type, enabled=False):
+                out = torch.addmm(out.float(), extra.float(), self.extra_weight.t())
         return out
 
     def extra_repr(self) -> str:

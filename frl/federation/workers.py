@@ -149,14 +149,48 @@ def _exit_with_parent() -> None:
         sys.exit(143)
 
 
+# glibc mallopt parameters (malloc.h).
+_M_TRIM_THRESHOLD = -1
+_M_TOP_PAD = -2
+_M_MMAP_THRESHOLD = -3
+
+
+def retain_freed_memory() -> bool:
+    """Ask glibc to keep freed memory for reuse instead of returning it to the kernel.
+
+    Every DDPG step allocates and frees the same few dozen 0.1-3 MB tensors. By default
+    glibc serves those with fresh ``mmap`` pages and hands them back on free, so each step
+    pays hundreds of page faults (measured: ~330 per step, 0.7 ms of a 20 ms bf16 step
+    in a vehicle process on the 2-core VM). Raising the mmap and trim thresholds lets the
+    heap keep and reuse them; a training process's working set is stable, so little
+    memory is held back. Returns False (doing nothing) where glibc is not the allocator.
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    ok = mallopt(_M_MMAP_THRESHOLD, 32 * 1024 * 1024)  # glibc's maximum on 64-bit
+    ok &= mallopt(_M_TRIM_THRESHOLD, 1024 * 1024 * 1024)
+    ok &= mallopt(_M_TOP_PAD, 64 * 1024 * 1024)
+    return bool(ok)
+
+
 def prepare_worker_process(num_threads: int) -> None:
-    """Set up a freshly spawned client process: threads, signals, death with its parent.
+    """Set up a freshly spawned client process: threads, memory reuse, signals, death
+    with its parent.
 
     The parent handles Ctrl-C and stops its workers; SIGTERM unwinds so that ``finally``
     blocks run (a TraCI backend's SUMO child is stopped with them).
     """
     for var in _THREAD_ENV_VARS:
         os.environ[var] = str(num_threads)
+    retain_freed_memory()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     _exit_with_parent()
