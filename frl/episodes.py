@@ -63,9 +63,20 @@ class EpisodeRecord:
 Policy = Callable[[np.ndarray], np.ndarray]
 
 
-def run_episode(env: IntersectionEnv, policy: Policy, task: str, seed: int | None) -> EpisodeRecord:
-    """Play one episode of ``task`` with ``policy``; ``seed`` restarts SUMO (None continues)."""
+def run_episode(
+    env: IntersectionEnv,
+    policy: Policy,
+    task: str,
+    seed: int | None,
+    on_reset: Callable[[], None] | None = None,
+) -> EpisodeRecord:
+    """Play one episode of ``task`` with ``policy``; ``seed`` restarts SUMO (None continues).
+
+    ``on_reset`` runs after the reset, before the first action (an agent's
+    ``episode_start``: a held action must not cross episodes)."""
     observation, info = env.reset(seed=seed, options={"task": task})
+    if on_reset is not None:
+        on_reset()
     total = 0.0
     speeds = []
     while True:
@@ -94,11 +105,15 @@ def speed_summary(speeds: Sequence[float], moving_speed: float) -> tuple[float, 
 
 
 def run_episodes(
-    env: IntersectionEnv, policy: Policy, task: str, seeds: Iterable[int]
+    env: IntersectionEnv,
+    policy: Policy,
+    task: str,
+    seeds: Iterable[int],
+    on_reset: Callable[[], None] | None = None,
 ) -> list[EpisodeRecord]:
     """One episode per seed, each on freshly restarted SUMO traffic (common random numbers:
     every policy tested with the same seeds meets the same human arrivals)."""
-    return [run_episode(env, policy, task, int(seed)) for seed in seeds]
+    return [run_episode(env, policy, task, int(seed), on_reset) for seed in seeds]
 
 
 def summarize(records: Sequence[EpisodeRecord]) -> dict[str, Any]:

@@ -76,15 +76,17 @@ class PolicyEvaluator:
         progress: Callable[..., None] | None = None,
     ) -> list[EpisodeRecord]:
         """One episode per seed with ``policy``: the model (exploration off) or a yardstick."""
+        on_reset = None
         if policy == MODEL:
             if self.agent is None:
                 raise ValueError("this evaluator holds no model")
             act = functools.partial(self.agent.act, explore=False)
+            on_reset = self.agent.episode_start
         else:
             act = make_yardstick(policy, self.env)
         records = []
         for number, seed in enumerate(seeds, start=1):
-            records.append(run_episode(self.env, act, task, seed))
+            records.append(run_episode(self.env, act, task, seed, on_reset))
             if progress is not None:
                 progress(episodes=number)
         return records

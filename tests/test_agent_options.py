@@ -1,5 +1,6 @@
-"""The agent's opt-in learning options: n-step targets, held warm-up actions, and the
-pre-tanh penalty, each against hand-computed numbers or its defining property."""
+"""The agent's opt-in learning options: n-step targets, held warm-up actions, the
+pre-tanh penalty, held actions (action_repeat) and a rule-driven warm-up, each against
+hand-computed numbers or its defining property."""
 
 from pathlib import Path
 
@@ -129,9 +130,103 @@ def test_options_survive_a_checkpoint_and_old_checkpoints_still_load(tmp_path: P
         )
 
 
+def test_n_step_over_transitions_that_span_several_steps():
+    acc = NStepAccumulator(2, gamma=0.5)
+    assert acc.push(_obs(0), _obs(0), 1.0, _obs(3), False, horizon=3) == []
+    (first,) = acc.push(_obs(3), _obs(0), 4.0, _obs(5), False, horizon=2)
+    # 1 + 0.5**3 * 4: the second reward comes 3 steps after the first
+    assert first.reward == pytest.approx(1.5) and first.horizon == 5
+
+
+def test_action_repeat_holds_each_action_and_stores_one_transition_per_hold():
+    options = {"action_repeat": 3, "n_step": 1, "learning_starts": 0, "hidden_sizes": (16,)}
+    agent = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), **options}), seed=1)
+    rng = np.random.default_rng(3)
+    frames = [rng.uniform(0, 1, GRID.shape).astype(np.float32) for _ in range(9)]
+    agent.episode_start()
+    actions = []
+    for t in range(7):
+        action = agent.act(frames[t])
+        actions.append(float(action[0]))
+        agent.observe(frames[t], action, 1.0, frames[t + 1], terminated=False)
+    assert actions[0] == actions[1] == actions[2] and actions[3] == actions[4] == actions[5]
+    assert actions[2] != actions[3]  # the noise moves on at the next decision
+    assert len(agent.buffer) == 2 and agent.num_env_steps == 7
+    assert agent.buffer.horizons[:2].tolist() == [3, 3]
+    assert agent.buffer.rewards[0] == pytest.approx(1 + 0.99 + 0.99**2)
+    np.testing.assert_array_equal(agent.buffer._obs.dense(np.array([1]))[0], frames[3].ravel())
+    np.testing.assert_array_equal(
+        agent.buffer._next_obs.dense(np.array([1]))[0], frames[6].ravel()
+    )
+    # A time limit cuts the third hold after one step: it bootstraps from there.
+    agent.episode_start()
+    assert len(agent.buffer) == 3 and agent.buffer.horizons[2] == 1
+    assert agent.buffer.terminated[2] == 0
+    # A termination mid-hold ends the transition there, terminal.
+    agent.act(frames[0])
+    agent.observe(frames[0], np.array([0.2], np.float32), -10.0, frames[1], terminated=True)
+    assert len(agent.buffer) == 4 and agent.buffer.terminated[3] == 1
+    assert agent.buffer.horizons[3] == 1
+
+
+def test_action_repeat_holds_the_deterministic_policy_too_and_restarts_each_episode():
+    options = {"action_repeat": 4, "hidden_sizes": (16,)}
+    agent = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), **options}), seed=2)
+    rng = np.random.default_rng(4)
+    frames = [rng.uniform(0, 1, GRID.shape).astype(np.float32) for _ in range(6)]
+    agent.episode_start()
+    chosen = [float(agent.act(frame, explore=False)[0]) for frame in frames[:5]]
+    assert chosen[:4] == [chosen[0]] * 4 and chosen[4] != chosen[0]
+    agent.episode_start()  # a new episode decides at once, on its own first frame
+    assert float(agent.act(frames[5], explore=False)[0]) != chosen[4]
+
+
+def test_a_held_action_survives_a_checkpoint(tmp_path: Path):
+    options = {"action_repeat": 3, "n_step": 1, "learning_starts": 0, "hidden_sizes": (16,)}
+    config = DDPGConfig(**{**SMALL.to_dict(), **options})
+    agent = DDPG(GRID, ACCEL, config, seed=5)
+    rng = np.random.default_rng(6)
+    frames = [rng.uniform(0, 1, GRID.shape).astype(np.float32) for _ in range(8)]
+    agent.episode_start()
+    for t in range(4):  # one hold done, the second one step in
+        agent.observe(frames[t], agent.act(frames[t]), 0.5, frames[t + 1], False)
+    agent.save(tmp_path / "a.pt", include_buffer=True)
+    restored = DDPG.from_checkpoint(tmp_path / "a.pt", GRID, ACCEL)
+    for t in range(4, 7):
+        a, b = agent.act(frames[t]), restored.act(frames[t])
+        np.testing.assert_array_equal(a, b)
+        agent.observe(frames[t], a, 0.5, frames[t + 1], False)
+        restored.observe(frames[t], b, 0.5, frames[t + 1], False)
+    assert len(agent.buffer) == len(restored.buffer) == 2
+    assert agent.buffer.rewards[1] == restored.buffer.rewards[1]
+
+
+def test_a_rule_driven_warm_up_follows_the_rule_with_perturbations():
+    options = {"warmup_policy": "gap_acceptance", "learning_starts": 50, "hidden_sizes": (16,)}
+    agent = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), **options}), seed=7)
+    obs = np.zeros(GRID.shape, np.float32)
+    with pytest.raises(RuntimeError, match="set_warmup_policy"):
+        agent.act(obs)
+    agent.set_warmup_policy(lambda observation: np.array([-1.0], np.float32))
+    actions = np.array([agent.act(obs)[0] for _ in range(50)])
+    # -1 + N(0, 0.3) clipped to [-1, 1]: -1 + 0.3 E[max(Z, 0)] = -0.88 on average
+    assert actions.max() < 0 and actions.mean() == pytest.approx(-0.88, abs=0.06)
+    assert np.isnan(agent.last_policy_action).all()
+    for _ in range(50):
+        agent.observe(obs, np.zeros(1), 0.0, obs, False)
+    agent.act(obs)  # past learning_starts: the policy, not the rule
+    assert not np.isnan(agent.last_policy_action).any()
+
+
 @pytest.mark.parametrize(
     ("field", "value"),
-    [("n_step", 0), ("warmup_hold_steps", 0.5), ("preactivation_l2", -1.0)],
+    [
+        ("n_step", 0),
+        ("warmup_hold_steps", 0.5),
+        ("preactivation_l2", -1.0),
+        ("action_repeat", 0),
+        ("warmup_policy", "oracle"),
+    ],
 )
 def test_bad_option_values_fail_clearly(field, value):
     with pytest.raises(ValueError, match=field):

@@ -9,12 +9,18 @@ from typing import Any
 from frl.agents.precision import PRECISIONS
 
 NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
+ENCODERS: tuple[str, ...] = ("flat", "vehicles")
+WARMUP_POLICIES: tuple[str, ...] = ("uniform", "gap_acceptance")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
     "n_step": 1,
     "preactivation_l2": 0.0,
     "precision": "float32",
+    "encoder": "flat",
+    "encoder_width": 64,
+    "action_repeat": 1,
+    "warmup_policy": "uniform",
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -70,6 +76,17 @@ class DDPGConfig:
     """Mean steps each uniform warm-up action is held (geometric durations); 1: a new
     action every step (Table II's SB3). Held actions drive long stretches of braking and
     of accelerating, so the first updates see waiting and going (docs/results.md)."""
+    warmup_policy: str = "uniform"
+    """What drives the warm-up: ``uniform`` actions (held as above), or ``gap_acceptance``,
+    frl's rule-based driver (:class:`frl.policies.GapAcceptancePolicy`), its action
+    perturbed by N(0, ``noise_sigma``): learning from demonstrations, opt-in. The agent
+    gets the rule from whoever drives it (:meth:`frl.agents.DDPG.set_warmup_policy`;
+    frl's vehicles install it)."""
+    action_repeat: int = 1
+    """Environment steps each chosen action is held (1: a new action every step). The
+    agent learns from one transition per held action, its reward discounted inside, and
+    ``n_step`` counts those transitions; budgets, ``train_freq`` and ``learning_starts``
+    stay in environment steps."""
     n_step: int = 5
     """Steps summed in each critic target before bootstrapping (1: the one-step target of
     Table II). Five carry an arrival's +5 back to the decision to go five times faster
@@ -83,6 +100,12 @@ class DDPGConfig:
     """``"auto"`` picks the sparse path (network and buffer) for obs with this many features."""
     sparse_capacity: int = 64
     """Initial non-zeros stored per observation in the compact buffer; grows, never truncates."""
+    encoder: str = "flat"
+    """What the MLPs read: ``flat``, the observation itself (Table II's MLP policy), or
+    ``vehicles``, a grid observation as the set of vehicles it shows
+    (:class:`frl.agents.vehicle_encoder.VehicleSetEncoder`, one per network)."""
+    encoder_width: int = 64
+    """Width of the ``vehicles`` encoder's per-vehicle MLP; it hands 2x this to the MLP."""
     precision: str = "float32"
     """What the forward and backward passes of updates and acting compute in: ``float32``,
     ``bf16`` (autocast; weights, optimizer state, targets, output layers and losses stay
@@ -105,6 +128,8 @@ class DDPGConfig:
             "gradient_steps",
             "sparse_min_features",
             "sparse_capacity",
+            "encoder_width",
+            "action_repeat",
         ):
             value = getattr(self, name)
             _require(
@@ -154,6 +179,15 @@ class DDPGConfig:
             "noise_theta * noise_dt must be < 2 for a stable OU process",
         )
         _require(
+            self.warmup_policy in WARMUP_POLICIES,
+            f"warmup_policy must be one of {', '.join(WARMUP_POLICIES)}, "
+            f"got {self.warmup_policy!r}",
+        )
+        _require(
+            self.encoder in ENCODERS,
+            f"encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}",
+        )
+        _require(
             self.precision in PRECISIONS,
             f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}",
         )
@@ -163,7 +197,10 @@ class DDPGConfig:
         )
 
     def use_sparse(self, num_features: int) -> bool:
-        """Whether observations of ``num_features`` features take the sparse path."""
+        """Whether observations of ``num_features`` features take the sparse path (the
+        flat encoder's first layer; the vehicles encoder reads dense batches)."""
+        if self.encoder != "flat":
+            return False
         if self.sparse_input == "auto":
             return num_features >= self.sparse_min_features
         return bool(self.sparse_input)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import copy
 import os
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -21,9 +23,22 @@ from frl.agents.noise import generator_state, make_noise, set_generator_state
 from frl.agents.precision import autocast, resolve_precision
 from frl.agents.replay_buffer import Batch, ReplayBuffer
 from frl.agents.sparse_linear import SparseRows
+from frl.agents.vehicle_encoder import VehicleSetEncoder
 
 NETWORK_NAMES: tuple[str, ...] = ("actor", "critic", "actor_target", "critic_target")
 """Prefixes of :meth:`DDPG.federated_state` keys, e.g. ``critic_target.layers.0.weight``."""
+
+
+@dataclass
+class _HeldDecision:
+    """The action being held (``action_repeat`` > 1) and what it has earned so far."""
+
+    obs: np.ndarray
+    action: np.ndarray
+    reward: float = 0.0
+    """Discounted sum of the rewards of the steps taken so far."""
+    steps: int = 0
+    next_obs: np.ndarray | None = None
 
 
 def is_target_key(name: str) -> bool:
@@ -97,12 +112,14 @@ class DDPG:
         # Built on the meta device so that nn.Linear's own init never draws from the
         # global torch RNG; then materialised and initialised from init_gen only.
         with torch.device("meta"):
-            actor = Actor(self.obs_dim, self.action_dim, cfg.hidden_sizes)
-            critic = Critic(self.obs_dim, self.action_dim, cfg.hidden_sizes)
+            actor = Actor(self.obs_dim, self.action_dim, cfg.hidden_sizes, self._encoder())
+            critic = Critic(self.obs_dim, self.action_dim, cfg.hidden_sizes, self._encoder())
         self.actor = actor.to_empty(device="cpu")
         self.critic = critic.to_empty(device="cpu")
-        init_mlp_(self.actor.layers, init_gen)
-        init_mlp_(self.critic.layers, init_gen)
+        for network in (self.actor, self.critic):
+            if network.encoder is not None:
+                network.encoder.reset_parameters(init_gen)
+            init_mlp_(network.layers, init_gen)
         self.actor.to(self.device)
         self.critic.to(self.device)
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
@@ -134,6 +151,10 @@ class DDPG:
         )
         self._explore_rng = np.random.default_rng(explore_seq)
         self._warmup_action: np.ndarray | None = None
+        self._warmup_policy: Callable[[np.ndarray], Any] | None = None
+        self._held_action: np.ndarray | None = None
+        self._hold_left = 0
+        self._decision: _HeldDecision | None = None
         self._n_step = NStepAccumulator(cfg.n_step, cfg.gamma)
         self.last_policy_action = np.full(self.action_dim, np.nan)
         """The deterministic policy's action (normalised to [-1, 1], before noise) behind
@@ -142,6 +163,11 @@ class DDPG:
         """Transitions passed to :meth:`observe`."""
         self.num_updates = 0
         """Gradient steps taken."""
+
+    def _encoder(self) -> VehicleSetEncoder | None:
+        if self.config.encoder == "vehicles":
+            return VehicleSetEncoder(self.obs_shape, self.config.encoder_width)
+        return None
 
     # ------------------------------------------------------------------ acting
     def _normalise(self, action: np.ndarray) -> np.ndarray:
@@ -174,14 +200,20 @@ class DDPG:
         """Action for one observation, float32 and within the action bounds.
 
         With ``explore`` the action is the policy's plus noise (both in normalised units,
-        clipped to [-1, 1]); before ``learning_starts`` transitions have been observed it is
-        uniform over the bounds instead (``DDPGConfig.random_warmup``), as in SB3 and
-        CleanRL, so the first updates see diverse actions. Without ``explore`` it is the
-        deterministic policy.
+        clipped to [-1, 1]); before ``learning_starts`` transitions have been observed it
+        comes from the warm-up instead (``DDPGConfig.random_warmup`` and
+        ``warmup_policy``), as SB3 and CleanRL act uniformly at random then, so the first
+        updates see diverse actions. Without ``explore`` it is the deterministic policy.
+        With ``action_repeat`` k > 1 a new action is chosen every k calls and held in
+        between: call :meth:`episode_start` at every reset, so that no hold crosses
+        episodes.
         """
         cfg = self.config
+        if self._hold_left > 0 and self._held_action is not None:
+            self._hold_left -= 1
+            return self._denormalise(self._held_action)
         if explore and cfg.random_warmup and self.num_env_steps < cfg.learning_starts:
-            action = self._warmup_step()
+            action = self._warmup_decision(obs)
             self.last_policy_action = np.full(self.action_dim, np.nan)
         else:
             with torch.no_grad(), self._autocast():
@@ -189,7 +221,29 @@ class DDPG:
             self.last_policy_action = action
             if explore:
                 action = np.clip(action + self.noise(), -1.0, 1.0)
+        if cfg.action_repeat > 1:
+            self._held_action, self._hold_left = action, cfg.action_repeat - 1
         return self._denormalise(action)
+
+    def set_warmup_policy(self, policy: Callable[[np.ndarray], Any] | None) -> None:
+        """The driver of the warm-up under ``warmup_policy`` other than ``uniform``: a
+        callable from an observation to an action in the env's units (frl's vehicles
+        install :class:`frl.policies.GapAcceptancePolicy` for ``gap_acceptance``)."""
+        self._warmup_policy = policy
+
+    def _warmup_decision(self, obs: Any) -> np.ndarray:
+        """A warm-up action in normalised units (see ``DDPGConfig.warmup_policy``)."""
+        cfg = self.config
+        if cfg.warmup_policy == "uniform":
+            return self._warmup_step()
+        if self._warmup_policy is None:
+            raise RuntimeError(
+                f"warmup_policy={cfg.warmup_policy!r} needs the driver: call "
+                "agent.set_warmup_policy(policy) first (frl's vehicles do)"
+            )
+        rule = np.asarray(self._warmup_policy(obs), dtype=np.float64).reshape(-1)
+        perturbation = self._explore_rng.normal(0.0, cfg.noise_sigma, size=self.action_dim)
+        return np.clip(self._normalise(rule) + perturbation, -1.0, 1.0)
 
     def _warmup_step(self) -> np.ndarray:
         """A uniform action, held for a geometric number of steps (mean
@@ -204,8 +258,14 @@ class DDPG:
         self.noise.reset()
 
     def episode_start(self) -> None:
-        """Call after every ``env.reset()``. A previous episode still pending n-step
-        transitions was cut off by a time limit: they bootstrap from its last state."""
+        """Call after every ``env.reset()``. A previous episode still pending transitions
+        (n-step, or an action still held) was cut off by a time limit: they bootstrap
+        from its last state."""
+        if self._decision is not None and self._decision.next_obs is not None:
+            held = self._decision
+            self._store(held.obs, held.action, held.reward, held.next_obs, False, held.steps)
+        self._decision = None
+        self._held_action, self._hold_left = None, 0
         for transition in self._n_step.flush():
             self.buffer.add(*transition)
         self._warmup_action = None
@@ -217,14 +277,32 @@ class DDPG:
         """Store a transition. Pass gymnasium's ``terminated``, not ``terminated or truncated``:
         a time-limit cut-off is not a terminal state and must still bootstrap."""
         normalised = self._normalise(np.asarray(action, dtype=np.float64).reshape(-1))
-        if self.config.n_step == 1:
-            self.buffer.add(obs, normalised, float(reward), next_obs, bool(terminated))
+        repeat = self.config.action_repeat
+        if repeat == 1:
+            self._store(obs, normalised, float(reward), next_obs, bool(terminated), 1)
         else:
-            for transition in self._n_step.push(
-                obs, normalised, float(reward), next_obs, bool(terminated)
-            ):
-                self.buffer.add(*transition)
+            if self._decision is None:
+                self._decision = _HeldDecision(obs, normalised)
+            held = self._decision
+            held.reward += self.config.gamma**held.steps * float(reward)
+            held.steps += 1
+            held.next_obs = next_obs
+            if terminated or held.steps == repeat:
+                done = bool(terminated)
+                self._store(held.obs, held.action, held.reward, next_obs, done, held.steps)
+                self._decision = None
         self.num_env_steps += 1
+
+    def _store(
+        self, obs: Any, action: np.ndarray, reward: float, next_obs: Any, terminated: bool,
+        horizon: int,
+    ) -> None:  # fmt: skip
+        """Into the buffer, through the n-step accumulator when ``n_step`` > 1."""
+        if self.config.n_step == 1:
+            self.buffer.add(obs, action, reward, next_obs, terminated, horizon)
+        else:
+            for transition in self._n_step.push(obs, action, reward, next_obs, terminated, horizon):
+                self.buffer.add(*transition)
 
     # ---------------------------------------------------------------- learning
     def update(self) -> dict[str, float]:
@@ -256,7 +334,8 @@ class DDPG:
         # losses below are computed in float32 whatever the precision.
         with torch.no_grad():
             # gamma**k for an n-step transition of k steps (k = 1: the one-step target).
-            discount = cfg.gamma**batch.horizons if cfg.n_step > 1 else cfg.gamma
+            multi_step = cfg.n_step > 1 or cfg.action_repeat > 1
+            discount = cfg.gamma**batch.horizons if multi_step else cfg.gamma
             target_q = td_target(batch.rewards, batch.terminated, next_q, discount)
         critic_loss = F.mse_loss(q, target_q)
         self.critic_optimizer.zero_grad(set_to_none=True)
@@ -402,6 +481,7 @@ class DDPG:
                 "warmup_action": None
                 if self._warmup_action is None
                 else torch.from_numpy(self._warmup_action.copy()),
+                "held": self._held_state(),
                 "buffer": self.buffer.state_dict() if include_buffer else None,
             },
             path,
@@ -433,6 +513,7 @@ class DDPG:
             self._n_step.load_state_dict(data.get("n_step", {}))
             held = data.get("warmup_action")
             self._warmup_action = None if held is None else held.numpy().astype(np.float64)
+            self._load_held_state(data.get("held"))
             if data["buffer"] is not None:
                 self.buffer.load_state_dict(data["buffer"])
             else:
@@ -443,6 +524,44 @@ class DDPG:
             self.num_updates = int(data["counters"]["num_updates"])
         except (KeyError, TypeError, AttributeError, ValueError, RuntimeError) as error:
             raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
+
+    def _held_state(self) -> dict[str, Any] | None:
+        """The held action and its decision so far (``action_repeat`` > 1), as tensors."""
+        if self._held_action is None and self._decision is None:
+            return None
+        decision = self._decision
+        return {
+            "action": None
+            if self._held_action is None
+            else torch.from_numpy(self._held_action.copy()),
+            "left": self._hold_left,
+            "decision": None
+            if decision is None or decision.next_obs is None
+            else {
+                "obs": torch.from_numpy(np.asarray(decision.obs, np.float32).copy()),
+                "action": torch.from_numpy(decision.action.copy()),
+                "reward": decision.reward,
+                "steps": decision.steps,
+                "next_obs": torch.from_numpy(np.asarray(decision.next_obs, np.float32).copy()),
+            },
+        }
+
+    def _load_held_state(self, state: dict[str, Any] | None) -> None:
+        self._held_action, self._hold_left, self._decision = None, 0, None
+        if state is None:
+            return
+        if state["action"] is not None:
+            self._held_action = state["action"].numpy().astype(np.float64)
+        self._hold_left = int(state["left"])
+        decision = state["decision"]
+        if decision is not None:
+            self._decision = _HeldDecision(
+                decision["obs"].numpy(),
+                decision["action"].numpy().astype(np.float64),
+                float(decision["reward"]),
+                int(decision["steps"]),
+                decision["next_obs"].numpy(),
+            )
 
     def _check_compatible(self, data: dict[str, Any]) -> None:
         # Keys added to DDPGConfig since a checkpoint was written read as what it ran with.

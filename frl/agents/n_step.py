@@ -1,9 +1,13 @@
-"""n-step returns: one-step transitions in, n-step transitions out, per episode.
+"""n-step returns: transitions in, n-step transitions out, per episode.
 
 With n steps the critic's target is ``R + gamma^k * (1 - terminated) * Q'(s_{t+k}, .)``
 where ``R = r_t + gamma r_{t+1} + ... + gamma^(k-1) r_{t+k-1}`` and k = n, or fewer where
 the episode ended first. The +5 of an arrival 40 steps after the decision to go reaches
 that decision in 40 / n target updates instead of 40.
+
+A transition pushed in may itself span several environment steps (an action held for
+``DDPGConfig.action_repeat`` steps, with its reward already discounted inside): n counts
+transitions, and the discounts count environment steps.
 """
 
 from __future__ import annotations
@@ -41,10 +45,13 @@ class NStepAccumulator:
 
     def push(
         self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
-        terminated: bool,
+        terminated: bool, horizon: int = 1,
     ) -> list[Transition]:  # fmt: skip
-        """Add one step; the n-step transitions that are now complete."""
-        self._pending.append(Transition(obs, action, float(reward), next_obs, terminated, 1))
+        """Add one transition of ``horizon`` environment steps (its ``reward`` discounted
+        inside already); the n-step transitions that are now complete."""
+        self._pending.append(
+            Transition(obs, action, float(reward), next_obs, terminated, int(horizon))
+        )
         if terminated:
             return self._drain(terminated=True)
         if len(self._pending) < self.n:
@@ -64,11 +71,12 @@ class NStepAccumulator:
         return [self._combine(steps[i:], terminated) for i in range(len(steps))]
 
     def _combine(self, steps: list[Transition], terminated: bool) -> Transition:
-        reward = 0.0
-        for k, step in enumerate(steps):
-            reward += self.gamma**k * step.reward
+        reward, elapsed = 0.0, 0
+        for step in steps:
+            reward += self.gamma**elapsed * step.reward
+            elapsed += step.horizon
         first, last = steps[0], steps[-1]
-        return Transition(first.obs, first.action, reward, last.next_obs, terminated, len(steps))
+        return Transition(first.obs, first.action, reward, last.next_obs, terminated, elapsed)
 
     def state_dict(self) -> dict[str, Any]:
         """The pending steps as tensors (checkpoints load with ``weights_only=True``)."""
@@ -82,10 +90,12 @@ class NStepAccumulator:
             "rewards": torch.tensor([s.reward for s in steps], dtype=torch.float64),
             "next_obs": torch.from_numpy(np.stack([s.next_obs for s in steps]).astype(np.float32)),
             "terminated": torch.tensor([s.terminated for s in steps]),
+            "horizons": torch.tensor([s.horizon for s in steps]),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         count = int(state.get("count", 0))
+        horizons = state.get("horizons")  # absent in checkpoints of one-step pushes
         self._pending = deque(
             Transition(
                 state["obs"][i].numpy(),
@@ -93,7 +103,7 @@ class NStepAccumulator:
                 float(state["rewards"][i]),
                 state["next_obs"][i].numpy(),
                 bool(state["terminated"][i]),
-                1,
+                1 if horizons is None else int(horizons[i]),
             )
             for i in range(count)
         )

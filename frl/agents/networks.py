@@ -1,4 +1,4 @@
-"""Actor and critic MLPs of DDPG, with a sparse-capable first layer."""
+"""Actor and critic MLPs of DDPG, with a sparse-capable first layer or an encoder in front."""
 
 from __future__ import annotations
 
@@ -46,17 +46,26 @@ class Actor(nn.Module):
     """Deterministic policy: flat observation -> action in [-1, 1] (tanh).
 
     The agent maps [-1, 1] to the action bounds; keeping the network's range fixed keeps
-    its state dict independent of the action space's bounds.
+    its state dict independent of the action space's bounds. With an ``encoder`` the MLP
+    reads the encoder's output instead of the observation.
     """
 
-    def __init__(self, obs_dim: int, action_dim: int, hidden_sizes: Sequence[int]) -> None:
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        hidden_sizes: Sequence[int],
+        encoder: nn.Module | None = None,
+    ) -> None:
         super().__init__()
-        first = InputLinear(obs_dim, hidden_sizes[0])
+        self.encoder = encoder
+        in_features = obs_dim if encoder is None else encoder.out_features
+        first = InputLinear(in_features, hidden_sizes[0])
         self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, action_dim))
 
     def preactivation(self, obs: Tensor | SparseRows) -> Tensor:
         """The output layer's value before tanh (float32, also under autocast)."""
-        x = obs
+        x = obs if self.encoder is None else self.encoder(obs)
         for layer in self.layers[:-1]:
             x = torch.relu_(layer(x))  # in place: addmm's backward needs only its inputs
         return float32_layer(self.layers[-1], x)
@@ -68,18 +77,28 @@ class Actor(nn.Module):
 class Critic(nn.Module):
     """Q(obs, action) with a linear output: returns reach -10 and below, so no tanh.
 
-    The action joins the observation at the first layer (``layers.0.extra_weight``), which
-    computes ``Linear(obs_dim + action_dim, h0)`` on ``cat([obs, action])``.
+    The action joins the observation (or the encoder's output) at the first layer
+    (``layers.0.extra_weight``), which computes ``Linear(in + action_dim, h0)`` on
+    ``cat([x, action])``.
     """
 
-    def __init__(self, obs_dim: int, action_dim: int, hidden_sizes: Sequence[int]) -> None:
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        hidden_sizes: Sequence[int],
+        encoder: nn.Module | None = None,
+    ) -> None:
         super().__init__()
-        first = InputLinear(obs_dim, hidden_sizes[0], extra_features=action_dim)
+        self.encoder = encoder
+        in_features = obs_dim if encoder is None else encoder.out_features
+        first = InputLinear(in_features, hidden_sizes[0], extra_features=action_dim)
         self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, 1))
 
     def forward(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
         """Q-values, float32 (also under autocast)."""
-        x = torch.relu_(self.layers[0](obs, action))
+        x = obs if self.encoder is None else self.encoder(obs)
+        x = torch.relu_(self.layers[0](x, action))
         for layer in self.layers[1:-1]:
             x = torch.relu_(layer(x))  # in place: addmm's backward needs only its inputs
         return float32_layer(self.layers[-1], x).squeeze(-1)

@@ -25,6 +25,7 @@ from torch import Tensor
 from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
+from frl.policies import GapAcceptancePolicy
 from frl.fileio import write_json_atomic
 
 LOSS_NAMES: tuple[str, ...] = ("critic_loss", "actor_loss", "q_mean", "td_error")
@@ -122,6 +123,8 @@ class VehicleClient:
             init_seed=spec.init_seed,
             device=spec.device,
         )
+        if spec.agent.warmup_policy == "gap_acceptance":
+            self.agent.set_warmup_policy(GapAcceptancePolicy(self.env.config))
         self._observation: np.ndarray | None = None
         self._restarts = 0
         """SUMO (re)starts so far; the next start uses ``training_sumo_seed(env_seed, n)``."""
@@ -282,7 +285,7 @@ class VehicleClient:
 
         The episode in progress, if any, is dropped; training resumes on a fresh start.
         """
-        records = run_episodes(self.env, self.policy(), task, seeds)
+        records = run_episodes(self.env, self.policy(), task, seeds, self.agent.episode_start)
         self._observation = None
         self._needs_restart = True
         return records

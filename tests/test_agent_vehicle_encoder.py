@@ -1,0 +1,131 @@
+"""The vehicles encoder: the grid read as a set of vehicles, in front of DDPG's MLPs."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+
+from frl.agents import DDPG, DDPGConfig
+from frl.agents.vehicle_encoder import VehicleSetEncoder
+
+GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
+ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
+SMALL = DDPGConfig(
+    hidden_sizes=(32, 16),
+    buffer_size=500,
+    learning_starts=20,
+    batch_size=8,
+    encoder="vehicles",
+    encoder_width=16,
+)
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def encoder(width: int = 8, seed: int = 0) -> VehicleSetEncoder:
+    module = VehicleSetEncoder((26, 18, 3), width)
+    module.reset_parameters(torch.Generator().manual_seed(seed))
+    return module
+
+
+def grid_with(*vehicles: tuple[int, int, float, float]) -> torch.Tensor:
+    """A flat grid holding each (row, column, speed, heading) as an occupied cell."""
+    grid = torch.zeros(26, 18, 3)
+    for row, column, speed, heading in vehicles:
+        grid[row, column] = torch.tensor([speed, heading, 1.0])
+    return grid.reshape(1, -1)
+
+
+def test_one_vehicle_is_the_shared_mlp_of_its_position_and_channels() -> None:
+    module = encoder()
+    out = module(grid_with((3, 5, 0.4, -1.0)))
+    features = torch.tensor([[-1 + 2 * 3 / 25, -1 + 2 * 5 / 17, 0.4, -1.0]])
+    hidden = features
+    for layer in module.layers:
+        hidden = torch.relu(layer(hidden))
+    torch.testing.assert_close(out, torch.cat([hidden, hidden], dim=1))
+
+
+def test_vehicles_are_pooled_by_sum_and_max_whatever_their_order() -> None:
+    module = encoder()
+    a, b = (2, 4, 0.5, 1.0), (20, 9, 0.1, -1.0)
+    both = module(grid_with(a, b))
+    torch.testing.assert_close(both, module(grid_with(b, a)))
+    one_a, one_b = module(grid_with(a)), module(grid_with(b))
+    width = module.width
+    torch.testing.assert_close(both[:, :width], one_a[:, :width] + one_b[:, :width])
+    torch.testing.assert_close(both[:, width:], torch.maximum(one_a[:, width:], one_b[:, width:]))
+
+
+def test_an_empty_grid_encodes_to_zero_and_a_batch_keeps_its_rows_apart() -> None:
+    module = encoder()
+    batch = torch.cat([grid_with(), grid_with((1, 1, 0.2, 0.0)), grid_with()])
+    out = module(batch)
+    assert out.shape == (3, 16)
+    assert torch.equal(out[0], torch.zeros(16)) and torch.equal(out[2], torch.zeros(16))
+    torch.testing.assert_close(out[1:2], module(grid_with((1, 1, 0.2, 0.0))))
+
+
+def test_a_nearby_position_gives_a_nearby_encoding() -> None:
+    """Positions are numbers, not one-hot inputs: the next cell over is close."""
+    module = encoder(width=32)
+    here = module(grid_with((10, 5, 0.5, 1.0)))
+    next_cell = module(grid_with((11, 5, 0.5, 1.0)))
+    far = module(grid_with((25, 17, 0.5, 1.0)))
+    assert (here - next_cell).norm() < (here - far).norm()
+
+
+def test_refuses_observations_that_are_no_grid() -> None:
+    with pytest.raises(ValueError, match="3-D grid"):
+        VehicleSetEncoder((1404,))
+    with pytest.raises(ValueError, match="encoder must be one of flat, vehicles"):
+        DDPGConfig(encoder="cnn")
+    flat = spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
+    with pytest.raises(ValueError, match="3-D grid"):
+        DDPG(flat, ACCEL, SMALL)
+
+
+def run(agent: DDPG, steps: int, seed: int = 0) -> None:
+    rng = np.random.default_rng(seed)
+
+    def obs() -> np.ndarray:
+        grid = np.zeros(GRID.shape, np.float32)
+        for cell in rng.choice(26 * 18, size=int(rng.integers(1, 5)), replace=False):
+            grid[divmod(int(cell), 18)] = (rng.uniform(0, 1), rng.choice([-1.0, 1.0]), 1.0)
+        return grid
+
+    current = obs()
+    agent.episode_start()
+    for t in range(steps):
+        following = obs()
+        agent.observe(current, agent.act(current), float(rng.normal()), following, t % 7 == 6)
+        agent.update()
+        current = following
+
+
+def test_an_agent_with_the_encoder_trains_saves_and_averages_by_name(tmp_path: Path) -> None:
+    agent = DDPG(GRID, ACCEL, SMALL, seed=1)
+    assert not agent.sparse and agent.buffer.sparse  # dense batches from compact storage
+    state = agent.federated_state()
+    assert state["actor.encoder.layers.0.weight"].shape == (16, 4)
+    assert state["critic.layers.0.weight"].shape == (32, 32)  # 2 x width in
+    assert not any("positions" in key for key in state)
+    before = state["critic.encoder.layers.1.weight"].clone()
+    run(agent, 40)
+    assert not torch.equal(before, agent.federated_state()["critic.encoder.layers.1.weight"])
+    agent.save(tmp_path / "a.pt", include_buffer=True)
+    restored = DDPG.from_checkpoint(tmp_path / "a.pt", GRID, ACCEL)
+    obs = np.zeros(GRID.shape, np.float32)
+    obs[13, 2] = (0.3, 0.0, 1.0)
+    np.testing.assert_array_equal(
+        restored.act(obs, explore=False), agent.act(obs, explore=False)
+    )
+    run(agent, 10, seed=3)
+    run(restored, 10, seed=3)
+    a, b = agent.federated_state(), restored.federated_state()
+    assert all(torch.equal(a[key], b[key]) for key in a)
+    # Same keys and shapes as any other vehicle of the run: FedAvg averages by name.
+    other = DDPG(GRID, ACCEL, SMALL, seed=2)
+    other.load_federated_state(a)
