@@ -155,9 +155,7 @@ def test_action_repeat_holds_each_action_and_stores_one_transition_per_hold():
     assert agent.buffer.horizons[:2].tolist() == [3, 3]
     assert agent.buffer.rewards[0] == pytest.approx(1 + 0.99 + 0.99**2)
     np.testing.assert_array_equal(agent.buffer._obs.dense(np.array([1]))[0], frames[3].ravel())
-    np.testing.assert_array_equal(
-        agent.buffer._next_obs.dense(np.array([1]))[0], frames[6].ravel()
-    )
+    np.testing.assert_array_equal(agent.buffer._next_obs.dense(np.array([1]))[0], frames[6].ravel())
     # A time limit cuts the third hold after one step: it bootstraps from there.
     agent.episode_start()
     assert len(agent.buffer) == 3 and agent.buffer.horizons[2] == 1
@@ -231,3 +229,73 @@ def test_a_rule_driven_warm_up_follows_the_rule_with_perturbations():
 def test_bad_option_values_fail_clearly(field, value):
     with pytest.raises(ValueError, match=field):
         DDPGConfig(**{field: value})
+
+
+def td3(**options: object) -> DDPGConfig:
+    base = {"hidden_sizes": (16,), "n_step": 1, "learning_starts": 4, "batch_size": 4}
+    return DDPGConfig(**{**SMALL.to_dict(), **base, **options})
+
+
+def feed(agent: DDPG, steps: int, seed: int = 0) -> list[dict[str, float]]:
+    rng = np.random.default_rng(seed)
+    losses = []
+    agent.episode_start()
+    for t in range(steps):
+        o, o2 = (rng.uniform(0, 1, GRID.shape).astype(np.float32) for _ in range(2))
+        agent.observe(o, agent.act(o), float(rng.normal()), o2, terminated=t % 5 == 4)
+        losses.append(agent.update())
+    return losses
+
+
+def test_twin_critics_learn_towards_the_smaller_target():
+    agent = DDPG(GRID, ACCEL, td3(twin_critics=True), seed=4)
+    state = agent.federated_state()
+    assert {"critic2.layers.0.weight", "critic2_target.layers.0.weight"} <= set(state)
+    assert not torch.equal(state["critic.layers.0.weight"], state["critic2.layers.0.weight"])
+    feed(agent, 4)
+    batch = agent.buffer.gather(np.arange(4), sparse=agent.sparse)
+    with torch.no_grad():
+        next_action = agent.actor_target(batch.next_obs)
+        q1 = agent.critic_target(batch.next_obs, next_action)
+        q2 = agent.critic2_target(batch.next_obs, next_action)
+        target = batch.rewards + 0.99 * (1 - batch.terminated) * torch.minimum(q1, q2)
+        expected = float(
+            ((agent.critic(batch.obs, batch.actions) - target) ** 2).mean()
+            + ((agent.critic2(batch.obs, batch.actions) - target) ** 2).mean()
+        )
+    assert agent._train_step(batch)["critic_loss"].item() == pytest.approx(expected, rel=1e-5)
+
+
+def test_the_policy_and_the_targets_move_every_policy_delay_th_update():
+    agent = DDPG(GRID, ACCEL, td3(policy_delay=3), seed=5)
+    losses = feed(agent, 4)  # the first update
+    actor_before = agent.actor.layers[0].bias.clone()
+    target_before = agent.critic_target.layers[0].bias.clone()
+    for _ in range(2):  # updates 2 and 3: critic only
+        assert "actor_loss" not in feed(agent, 1)[0]
+    assert torch.equal(agent.actor.layers[0].bias, actor_before)
+    assert torch.equal(agent.critic_target.layers[0].bias, target_before)
+    assert "actor_loss" in feed(agent, 1)[0]  # update 4 = 1 + 3
+    assert not torch.equal(agent.actor.layers[0].bias, actor_before)
+    assert "actor_loss" in losses[-1]
+
+
+def test_target_policy_smoothing_is_clipped_gaussian_noise():
+    agent = DDPG(GRID, ACCEL, td3(target_noise=0.2, target_noise_clip=0.3), seed=6)
+    action = torch.zeros(20_000, 1)
+    noise = agent._smoothed(action)
+    assert noise.abs().max() <= 0.3 + 1e-6 and noise.std() == pytest.approx(0.17, abs=0.01)
+    near_bound = agent._smoothed(torch.full((1000, 1), 0.9))
+    assert near_bound.max() == 1.0 and near_bound.min() >= 0.6 - 1e-6  # within the range
+    assert DDPG(GRID, ACCEL, td3(), seed=6)._smoothed(action) is action  # off: DDPG
+
+
+def test_a_td3_agent_resumes_exactly(tmp_path: Path):
+    config = td3(twin_critics=True, target_noise=0.2, policy_delay=2)
+    agent = DDPG(GRID, ACCEL, config, seed=8)
+    feed(agent, 10)
+    agent.save(tmp_path / "td3.pt", include_buffer=True)
+    restored = DDPG.from_checkpoint(tmp_path / "td3.pt", GRID, ACCEL)
+    assert feed(agent, 6, seed=1) == feed(restored, 6, seed=1)
+    a, b = agent.federated_state(), restored.federated_state()
+    assert all(torch.equal(a[key], b[key]) for key in a)

@@ -119,9 +119,7 @@ def test_an_agent_with_the_encoder_trains_saves_and_averages_by_name(tmp_path: P
     restored = DDPG.from_checkpoint(tmp_path / "a.pt", GRID, ACCEL)
     obs = np.zeros(GRID.shape, np.float32)
     obs[13, 2] = (0.3, 0.0, 1.0)
-    np.testing.assert_array_equal(
-        restored.act(obs, explore=False), agent.act(obs, explore=False)
-    )
+    np.testing.assert_array_equal(restored.act(obs, explore=False), agent.act(obs, explore=False))
     run(agent, 10, seed=3)
     run(restored, 10, seed=3)
     a, b = agent.federated_state(), restored.federated_state()

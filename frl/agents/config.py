@@ -21,6 +21,10 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "encoder_width": 64,
     "action_repeat": 1,
     "warmup_policy": "uniform",
+    "twin_critics": False,
+    "target_noise": 0.0,
+    "target_noise_clip": 0.5,
+    "policy_delay": 1,
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -91,6 +95,19 @@ class DDPGConfig:
     """Steps summed in each critic target before bootstrapping (1: the one-step target of
     Table II). Five carry an arrival's +5 back to the decision to go five times faster
     (docs/results.md)."""
+    twin_critics: bool = False
+    """TD3's clipped double Q (Fujimoto et al. 2018): two critics, each trained towards
+    the smaller of their two targets, against the overestimation of a lone critic; the
+    actor follows the first."""
+    target_noise: float = 0.0
+    """TD3's target policy smoothing: N(0, this) noise, in normalised action units and
+    clipped to +-``target_noise_clip``, on the target actor's action in every critic
+    target (0: off, DDPG)."""
+    target_noise_clip: float = 0.5
+    """Bound of the target policy smoothing noise."""
+    policy_delay: int = 1
+    """Critic updates per actor update (and target update), TD3's delayed policy updates
+    (1: every update, DDPG)."""
     preactivation_l2: float = 0.0
     """Weight of the mean squared pre-tanh output in the actor loss: keeps the actor off
     tanh's flat tails, where no gradient can bring a saturated action back."""
@@ -130,6 +147,7 @@ class DDPGConfig:
             "sparse_capacity",
             "encoder_width",
             "action_repeat",
+            "policy_delay",
         ):
             value = getattr(self, name)
             _require(
@@ -144,7 +162,16 @@ class DDPGConfig:
             self.batch_size <= self.buffer_size,
             f"batch_size ({self.batch_size}) must not exceed buffer_size ({self.buffer_size})",
         )
-        for name in ("tau", "gamma", "actor_lr", "critic_lr", "noise_sigma", "noise_theta"):
+        for name in (
+            "tau",
+            "gamma",
+            "actor_lr",
+            "critic_lr",
+            "noise_sigma",
+            "noise_theta",
+            "target_noise",
+            "target_noise_clip",
+        ):
             value = getattr(self, name)
             _require(
                 isinstance(value, (int, float)) and math.isfinite(value),
@@ -158,6 +185,15 @@ class DDPGConfig:
             self.noise in NOISE_KINDS, f"noise must be one of {NOISE_KINDS}, got {self.noise!r}"
         )
         _require(self.noise_sigma >= 0, f"noise_sigma must be >= 0, got {self.noise_sigma}")
+        _require(self.target_noise >= 0, f"target_noise must be >= 0, got {self.target_noise}")
+        _require(
+            self.target_noise_clip > 0,
+            f"target_noise_clip must be positive, got {self.target_noise_clip}",
+        )
+        _require(
+            isinstance(self.twin_critics, bool),
+            f"twin_critics must be true or false, got {self.twin_critics!r}",
+        )
         _require(
             isinstance(self.warmup_hold_steps, (int, float))
             and 1 <= self.warmup_hold_steps < math.inf,

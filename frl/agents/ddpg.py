@@ -25,8 +25,12 @@ from frl.agents.replay_buffer import Batch, ReplayBuffer
 from frl.agents.sparse_linear import SparseRows
 from frl.agents.vehicle_encoder import VehicleSetEncoder
 
-NETWORK_NAMES: tuple[str, ...] = ("actor", "critic", "actor_target", "critic_target")
-"""Prefixes of :meth:`DDPG.federated_state` keys, e.g. ``critic_target.layers.0.weight``."""
+NETWORK_NAMES: tuple[str, ...] = (
+    "actor", "critic", "actor_target", "critic_target", "critic2", "critic2_target",
+)  # fmt: skip
+"""Prefixes of :meth:`DDPG.federated_state` keys, e.g. ``critic_target.layers.0.weight``;
+``critic2*`` only with ``twin_critics``."""
+_TARGET_PREFIXES = ("actor_target.", "critic_target.", "critic2_target.")
 
 
 @dataclass
@@ -43,7 +47,7 @@ class _HeldDecision:
 
 def is_target_key(name: str) -> bool:
     """Whether a federated-state key belongs to a target network."""
-    return name.startswith(("actor_target.", "critic_target."))
+    return name.startswith(_TARGET_PREFIXES)
 
 
 def _make_adam(params: list[nn.Parameter], lr: float, device: torch.device) -> torch.optim.Adam:
@@ -105,31 +109,36 @@ class DDPG:
         """What the forward and backward passes compute in here: ``float32`` or ``bf16``
         (``DDPGConfig.precision`` resolved for this device)."""
 
-        init_seq, noise_seq, buffer_seq, explore_seq = np.random.SeedSequence(self.seed).spawn(4)
+        # spawn(5)'s first four children are spawn(4)'s: seeds written before the fifth
+        # stream existed draw the same numbers.
+        streams = np.random.SeedSequence(self.seed).spawn(5)
+        init_seq, noise_seq, buffer_seq, explore_seq, target_noise_seq = streams
         if init_seed is not None:
             init_seq = np.random.SeedSequence(int(init_seed))
         init_gen = torch.Generator().manual_seed(int(init_seq.generate_state(1, np.uint64)[0]))
         # Built on the meta device so that nn.Linear's own init never draws from the
         # global torch RNG; then materialised and initialised from init_gen only.
-        with torch.device("meta"):
-            actor = Actor(self.obs_dim, self.action_dim, cfg.hidden_sizes, self._encoder())
-            critic = Critic(self.obs_dim, self.action_dim, cfg.hidden_sizes, self._encoder())
-        self.actor = actor.to_empty(device="cpu")
-        self.critic = critic.to_empty(device="cpu")
-        for network in (self.actor, self.critic):
-            if network.encoder is not None:
-                network.encoder.reset_parameters(init_gen)
-            init_mlp_(network.layers, init_gen)
-        self.actor.to(self.device)
-        self.critic.to(self.device)
+        self.actor = self._build(Actor, init_gen)
+        self.critic = self._build(Critic, init_gen)
+        self.critic2: Critic | None = self._build(Critic, init_gen) if cfg.twin_critics else None
         self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
-        self._online_params = [*self.actor.parameters(), *self.critic.parameters()]
-        self._target_params = [*self.actor_target.parameters(), *self.critic_target.parameters()]
+        self.critic2_target = (
+            None if self.critic2 is None else copy.deepcopy(self.critic2).requires_grad_(False)
+        )
+        online = [self.actor, self.critic, self.critic2]
+        targets = [self.actor_target, self.critic_target, self.critic2_target]
+        self._online_params = [p for net in online if net is not None for p in net.parameters()]
+        self._target_params = [p for net in targets if net is not None for p in net.parameters()]
+        self._critics = [net for net in (self.critic, self.critic2) if net is not None]
 
         self.actor_optimizer = _make_adam(list(self.actor.parameters()), cfg.actor_lr, self.device)
+        # One optimizer over both critics, as TD3's reference code and SB3 keep them.
         self.critic_optimizer = _make_adam(
-            list(self.critic.parameters()), cfg.critic_lr, self.device
+            [p for critic in self._critics for p in critic.parameters()], cfg.critic_lr, self.device
+        )
+        self._target_noise_gen = torch.Generator(device=self.device).manual_seed(
+            int(target_noise_seq.generate_state(1, np.uint64)[0])
         )
         self.noise = make_noise(
             cfg.noise,
@@ -163,6 +172,21 @@ class DDPG:
         """Transitions passed to :meth:`observe`."""
         self.num_updates = 0
         """Gradient steps taken."""
+
+    def _build(self, kind: type[Actor] | type[Critic], init_gen: torch.Generator) -> Any:
+        """An actor or critic initialised from ``init_gen`` alone, on the agent's device.
+
+        Built on the meta device so that nn.Linear's own init never draws from the
+        global torch RNG; then materialised and initialised from ``init_gen`` only.
+        """
+        cfg = self.config
+        with torch.device("meta"):
+            network = kind(self.obs_dim, self.action_dim, cfg.hidden_sizes, self._encoder())
+        network = network.to_empty(device="cpu")
+        if network.encoder is not None:
+            network.encoder.reset_parameters(init_gen)
+        init_mlp_(network.layers, init_gen)
+        return network.to(self.device)
 
     def _encoder(self) -> VehicleSetEncoder | None:
         if self.config.encoder == "vehicles":
@@ -328,8 +352,12 @@ class DDPG:
         cfg = self.config
         with self._autocast():
             with torch.no_grad():
-                next_q = self.critic_target(batch.next_obs, self.actor_target(batch.next_obs))
-            q = self.critic(batch.obs, batch.actions)
+                next_action = self._smoothed(self.actor_target(batch.next_obs))
+                next_q = self.critic_target(batch.next_obs, next_action)
+                if self.critic2_target is not None:
+                    other = self.critic2_target(batch.next_obs, next_action)
+                    next_q = torch.minimum(next_q, other)
+            q_values = [critic(batch.obs, batch.actions) for critic in self._critics]
         # The outputs are float32 (frl.agents.precision.float32_layer): the target and the
         # losses below are computed in float32 whatever the precision.
         with torch.no_grad():
@@ -337,11 +365,38 @@ class DDPG:
             multi_step = cfg.n_step > 1 or cfg.action_repeat > 1
             discount = cfg.gamma**batch.horizons if multi_step else cfg.gamma
             target_q = td_target(batch.rewards, batch.terminated, next_q, discount)
-        critic_loss = F.mse_loss(q, target_q)
+        critic_loss = F.mse_loss(q_values[0], target_q)
+        for q_other in q_values[1:]:
+            critic_loss = critic_loss + F.mse_loss(q_other, target_q)
         self.critic_optimizer.zero_grad(set_to_none=True)
         critic_loss.backward()
         self.critic_optimizer.step()
+        q = q_values[0].detach()
+        stats = {
+            "critic_loss": critic_loss.detach(),
+            "q_mean": q.mean(),
+            "td_error": (q - target_q).abs().mean(),
+        }
+        # TD3's delayed updates: the actor and the targets move every policy_delay-th step.
+        if self.num_updates % cfg.policy_delay == 0:
+            stats["actor_loss"] = self._actor_step(batch)
+            soft_update(self._target_params, self._online_params, cfg.tau)
+        return stats
 
+    def _smoothed(self, action: Tensor) -> Tensor:
+        """TD3's target policy smoothing (``target_noise`` > 0), else ``action`` itself."""
+        cfg = self.config
+        if cfg.target_noise <= 0:
+            return action
+        noise = torch.randn(
+            action.shape, generator=self._target_noise_gen, device=action.device
+        ).mul_(cfg.target_noise)
+        noise = noise.clamp_(-cfg.target_noise_clip, cfg.target_noise_clip)
+        return (action.float() + noise).clamp_(-1.0, 1.0)
+
+    def _actor_step(self, batch: Batch) -> Tensor:
+        """One actor update through the first critic; the detached loss."""
+        cfg = self.config
         # Freeze the critic so backward computes only what the actor needs: no critic
         # weight gradients (and none for its sparse first layer), just dQ/da.
         self.critic.requires_grad_(False)
@@ -360,14 +415,7 @@ class DDPG:
         finally:
             self.critic.requires_grad_(True)
         self.actor_optimizer.step()
-
-        soft_update(self._target_params, self._online_params, cfg.tau)
-        return {
-            "critic_loss": critic_loss.detach(),
-            "actor_loss": actor_loss.detach(),
-            "q_mean": q.detach().mean(),
-            "td_error": (q.detach() - target_q).abs().mean(),
-        }
+        return actor_loss.detach()
 
     def critic_values(self, observations: Any, actions: Any) -> np.ndarray:
         """Q(s, a) of the online critic for a batch of observations and env-unit actions."""
@@ -383,12 +431,15 @@ class DDPG:
 
     # ---------------------------------------------------------- federated state
     def _networks(self) -> dict[str, nn.Module]:
-        return {
+        networks = {
             "actor": self.actor,
             "critic": self.critic,
             "actor_target": self.actor_target,
             "critic_target": self.critic_target,
+            "critic2": self.critic2,
+            "critic2_target": self.critic2_target,
         }
+        return {name: net for name, net in networks.items() if net is not None}
 
     @property
     def federated_keys(self) -> tuple[str, ...]:
@@ -476,6 +527,7 @@ class DDPG:
                 "rngs": {
                     "explore": generator_state(self._explore_rng),
                     "buffer": generator_state(self.buffer.rng),
+                    "target_noise": self._target_noise_gen.get_state(),
                 },
                 "counters": {"num_env_steps": self.num_env_steps, "num_updates": self.num_updates},
                 "warmup_action": None
@@ -520,6 +572,8 @@ class DDPG:
                 self.buffer.pos = self.buffer.size = 0
             set_generator_state(self._explore_rng, data["rngs"]["explore"])
             set_generator_state(self.buffer.rng, data["rngs"]["buffer"])
+            if "target_noise" in data["rngs"]:  # absent in checkpoints from before TD3
+                self._target_noise_gen.set_state(data["rngs"]["target_noise"])
             self.num_env_steps = int(data["counters"]["num_env_steps"])
             self.num_updates = int(data["counters"]["num_updates"])
         except (KeyError, TypeError, AttributeError, ValueError, RuntimeError) as error:

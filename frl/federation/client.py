@@ -25,8 +25,8 @@ from torch import Tensor
 from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
-from frl.policies import GapAcceptancePolicy
 from frl.fileio import write_json_atomic
+from frl.policies import GapAcceptancePolicy
 
 LOSS_NAMES: tuple[str, ...] = ("critic_loss", "actor_loss", "q_mean", "td_error")
 """Per-step learning statistics a client reports (NaN on steps without an update);
