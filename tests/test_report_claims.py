@@ -123,3 +123,23 @@ def test_the_report_tabulates_claims_draws_yardsticks_and_the_table_ii_agent(roo
         assert written[name].exists() and f"<!-- frl.report:begin {name} -->" in text
     assert "<!-- frl.report:begin claims-paper-agent -->" in text
     assert "| FedAvg-DDPG | left | 1 | 2.50 (n=1) |" in text
+
+
+def test_gap_acceptance_rows_appear_only_for_runs_tested_beside_it(root, tmp_path):
+    runs = [load_run(p) for p in sorted((root / "fig4").iterdir())]
+    measures = {c.measure for c in fig4_fig5_claims(runs, SETTINGS)}
+    assert not any("gap acceptance" in measure for measure in measures)
+    for seed in (0, 1):  # FedAvg at 7.0 and 7.5, 10% collisions; the rule 6.6 and 4%
+        table = _with_yardstick(evaluation(7.0 + seed / 2, 0.1, 40.0), 3.0, 0.2)
+        table["yardsticks"]["gap_acceptance"] = evaluation(6.6, 0.04, 60.0)
+        make_run(tmp_path / f"fedavg-seed{seed}", "fedavg", seed, evaluation=table)
+    runs = [load_run(tmp_path / f"fedavg-seed{seed}") for seed in (0, 1)]
+    claims = {c.measure: c for c in fig4_fig5_claims(runs, SETTINGS)}
+    better = claims["test reward, FedAvg-DDPG - gap acceptance, same seeds"]
+    assert better.ours.mean == pytest.approx(0.65)
+    assert better.verdict == "same direction, not significant"
+    safer = claims["collision rate, FedAvg-DDPG - gap acceptance, same seeds"]
+    assert safer.ours.mean == pytest.approx(0.06) and safer.expected_sign == -1
+    assert safer.verdict == "opposite (significant)"  # +6 pp at both seeds
+    arrives = claims["arrival rate, FedAvg-DDPG - gap acceptance, same seeds"]
+    assert arrives.ours.mean == pytest.approx(-0.06)
