@@ -42,8 +42,11 @@ class DDPGConfig:
     agent exactly: ``agent=ddpg-paper``).
 
     Noise parameters are in normalised action units: the actor's tanh output lives in
-    [-1, 1] and is scaled to the action bounds only after noise is added, so
-    ``noise_sigma=0.3`` is 30 % of the half-range of every action dimension.
+    [-1, 1] and is scaled to the action bounds only after noise is added. ``noise_sigma``
+    is the OU process's sigma, not its spread: with theta 0.15 and dt 0.01 the process,
+    restarted at 0 every episode, has a standard deviation of 0.07 after 5 steps, 0.13
+    after 20 and 0.20 after 45, and its stationary 0.548 takes about 667 steps
+    (:attr:`frl.agents.OrnsteinUhlenbeckNoise.stationary_variance`).
     """
 
     hidden_sizes: tuple[int, ...] = (512, 512, 256, 64)
