@@ -224,6 +224,9 @@ def test_a_rule_driven_warm_up_follows_the_rule_with_perturbations():
         ("preactivation_l2", -1.0),
         ("action_repeat", 0),
         ("warmup_policy", "oracle"),
+        ("terminal_fraction", 1.0),
+        ("policy_delay", 0),
+        ("target_noise", -0.1),
     ],
 )
 def test_bad_option_values_fail_clearly(field, value):

@@ -343,7 +343,9 @@ class DDPG:
         ):
             return {}
         for _ in range(cfg.gradient_steps):
-            batch = self.buffer.sample(cfg.batch_size, sparse=self.sparse, device=self.device)
+            batch = self.buffer.sample(
+                cfg.batch_size, self.sparse, self.device, cfg.terminal_fraction
+            )
             stats = self._train_step(batch)
             self.num_updates += 1
         return {name: value.item() for name, value in stats.items()}

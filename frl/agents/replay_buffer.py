@@ -211,9 +211,29 @@ class ReplayBuffer:
             raise ValueError("cannot sample from an empty replay buffer")
         return self.rng.integers(0, self.size, size=batch_size)
 
-    def sample(self, batch_size: int, sparse: bool = False, device: Any = "cpu") -> Batch:
-        """Draw ``batch_size`` transitions; observations as :class:`SparseRows` if ``sparse``."""
-        return self.gather(self.sample_slots(batch_size), sparse=sparse, device=device)
+    def sample_slots_ends(self, batch_size: int, terminal_fraction: float) -> np.ndarray:
+        """Like :meth:`sample_slots`, with ``round(terminal_fraction * batch_size)`` of the
+        slots drawn uniformly among terminal transitions (when the buffer holds any)."""
+        if terminal_fraction <= 0:
+            return self.sample_slots(batch_size)
+        ends = np.flatnonzero(self.terminated[: self.size])
+        count = round(terminal_fraction * batch_size) if ends.size else 0
+        if self.size == 0:
+            raise ValueError("cannot sample from an empty replay buffer")
+        uniform = self.rng.integers(0, self.size, size=batch_size - count)
+        return np.concatenate([uniform, ends[self.rng.integers(0, ends.size, size=count)]])
+
+    def sample(
+        self,
+        batch_size: int,
+        sparse: bool = False,
+        device: Any = "cpu",
+        terminal_fraction: float = 0.0,
+    ) -> Batch:
+        """Draw ``batch_size`` transitions; observations as :class:`SparseRows` if ``sparse``;
+        a ``terminal_fraction`` of them among the terminal transitions."""
+        slots = self.sample_slots_ends(batch_size, terminal_fraction)
+        return self.gather(slots, sparse=sparse, device=device)
 
     def gather(self, slots: np.ndarray, sparse: bool = False, device: Any = "cpu") -> Batch:
         """The transitions at ``slots`` as a :class:`Batch`. Sparse observations come with
