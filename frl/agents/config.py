@@ -26,6 +26,7 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "target_noise_clip": 0.5,
     "policy_delay": 1,
     "terminal_fraction": 0.0,
+    "explore_hold_probability": 0.0,
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -84,6 +85,12 @@ class DDPGConfig:
     """Mean steps each uniform warm-up action is held (geometric durations); 1: a new
     action every step (Table II's SB3). Held actions drive long stretches of braking and
     of accelerating, so the first updates see waiting and going (docs/results.md)."""
+    explore_hold_probability: float = 0.0
+    """After the warm-up, the chance per decision that exploration drives a uniform action
+    held for a geometric stretch (mean ``warmup_hold_steps``) instead of the policy's
+    noisy one: temporally-extended epsilon-greedy (Dabney et al. 2021). OU noise restarts
+    at 0 every episode and spreads only 0.07-0.2 over the first 45 steps, so a policy at
+    full throttle never tries braking where braking would have mattered; 0: off."""
     warmup_policy: str = "uniform"
     """What drives the warm-up: ``uniform`` actions (held as above), or ``gap_acceptance``,
     frl's rule-based driver (:class:`frl.policies.GapAcceptancePolicy`), its action
@@ -180,6 +187,7 @@ class DDPGConfig:
             "target_noise",
             "target_noise_clip",
             "terminal_fraction",
+            "explore_hold_probability",
         ):
             value = getattr(self, name)
             _require(
@@ -195,6 +203,10 @@ class DDPGConfig:
         )
         _require(self.noise_sigma >= 0, f"noise_sigma must be >= 0, got {self.noise_sigma}")
         _require(self.target_noise >= 0, f"target_noise must be >= 0, got {self.target_noise}")
+        _require(
+            0 <= self.explore_hold_probability <= 1,
+            f"explore_hold_probability must lie in [0, 1], got {self.explore_hold_probability}",
+        )
         _require(
             0 <= self.terminal_fraction < 1,
             f"terminal_fraction must lie in [0, 1), got {self.terminal_fraction}",

@@ -163,6 +163,8 @@ class DDPG:
         self._warmup_policy: Callable[[np.ndarray], Any] | None = None
         self._held_action: np.ndarray | None = None
         self._hold_left = 0
+        self._stretch_action: np.ndarray | None = None
+        self._stretch_left = 0
         self._decision: _HeldDecision | None = None
         self._n_step = NStepAccumulator(cfg.n_step, cfg.gamma)
         self.last_policy_action = np.full(self.action_dim, np.nan)
@@ -244,10 +246,27 @@ class DDPG:
                 action = self.actor(self._flat_obs_tensor(obs))[0].double().cpu().numpy()
             self.last_policy_action = action
             if explore:
-                action = np.clip(action + self.noise(), -1.0, 1.0)
+                action = self._explore_stretch(np.clip(action + self.noise(), -1.0, 1.0))
         if cfg.action_repeat > 1:
             self._held_action, self._hold_left = action, cfg.action_repeat - 1
         return self._denormalise(action)
+
+    def _explore_stretch(self, action: np.ndarray) -> np.ndarray:
+        """``action``, or a uniform one held for a geometric stretch of decisions (mean
+        ``warmup_hold_steps``) that starts with chance ``explore_hold_probability`` per
+        decision: temporally-extended epsilon-greedy exploration (Dabney et al. 2021)."""
+        probability = self.config.explore_hold_probability
+        if probability <= 0:
+            return action
+        if self._stretch_left > 0 and self._stretch_action is not None:
+            self._stretch_left -= 1
+            return self._stretch_action
+        if self._explore_rng.random() < probability:
+            self._stretch_action = self._explore_rng.uniform(-1.0, 1.0, size=self.action_dim)
+            duration = self._explore_rng.geometric(1.0 / self.config.warmup_hold_steps)
+            self._stretch_left = int(duration) - 1
+            return self._stretch_action
+        return action
 
     def set_warmup_policy(self, policy: Callable[[np.ndarray], Any] | None) -> None:
         """The driver of the warm-up under ``warmup_policy`` other than ``uniform``: a
@@ -290,6 +309,7 @@ class DDPG:
             self._store(held.obs, held.action, held.reward, held.next_obs, False, held.steps)
         self._decision = None
         self._held_action, self._hold_left = None, 0
+        self._stretch_action, self._stretch_left = None, 0
         for transition in self._n_step.flush():
             self.buffer.add(*transition)
         self._warmup_action = None
@@ -582,11 +602,16 @@ class DDPG:
             raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
 
     def _held_state(self) -> dict[str, Any] | None:
-        """The held action and its decision so far (``action_repeat`` > 1), as tensors."""
-        if self._held_action is None and self._decision is None:
+        """The held action and its decision so far (``action_repeat`` > 1), and the held
+        exploration stretch, as tensors."""
+        if self._held_action is None and self._decision is None and self._stretch_action is None:
             return None
         decision = self._decision
         return {
+            "stretch_action": None
+            if self._stretch_action is None
+            else torch.from_numpy(self._stretch_action.copy()),
+            "stretch_left": self._stretch_left,
             "action": None
             if self._held_action is None
             else torch.from_numpy(self._held_action.copy()),
@@ -604,8 +629,12 @@ class DDPG:
 
     def _load_held_state(self, state: dict[str, Any] | None) -> None:
         self._held_action, self._hold_left, self._decision = None, 0, None
+        self._stretch_action, self._stretch_left = None, 0
         if state is None:
             return
+        if state.get("stretch_action") is not None:
+            self._stretch_action = state["stretch_action"].numpy().astype(np.float64)
+        self._stretch_left = int(state.get("stretch_left", 0))
         if state["action"] is not None:
             self._held_action = state["action"].numpy().astype(np.float64)
         self._hold_left = int(state["left"])
