@@ -327,3 +327,35 @@ def test_exploration_stretches_replace_the_noisy_policy_for_held_uniform_actions
     # Off by default: the same seed then explores with the OU noise only.
     plain = DDPG(GRID, ACCEL, td3(learning_starts=0), seed=9)
     assert np.abs(drive(plain, 10) - policy).max() < 0.6  # OU: std 0.2 at step 40
+
+
+class SlopeCritic(torch.nn.Module):
+    """Q(s, a) = slope * a: the critic's gradient dQ/da is ``slope`` everywhere."""
+
+    def __init__(self, slope: float) -> None:
+        super().__init__()
+        self.slope = slope
+
+    def forward(self, obs: object, action: torch.Tensor) -> torch.Tensor:
+        return self.slope * action.squeeze(-1)
+
+
+def test_inverting_gradients_scale_dq_da_by_the_room_left_and_turn_round_past_a_bound():
+    agent = DDPG(GRID, ACCEL, td3(actor_update="inverting_gradients"), seed=10)
+    assert agent.actor.output == agent.actor_target.output == "clip"
+    feed(agent, 4)
+    batch = agent.buffer.gather(np.arange(4), sparse=agent.sparse)
+    agent.critic = SlopeCritic(-2.0)  # the critic asks for less everywhere
+    with torch.no_grad():
+        agent.actor.layers[-1].bias.fill_(1.5)  # past the upper bound
+        p = agent.actor.preactivation(batch.obs).squeeze(-1)
+    agent._inverting_gradients_backward(batch)
+    # d(surrogate)/d(bias) = mean of -(dQ/da) * (p + 1) / 2 = mean of (p + 1)
+    expected = float((p + 1.0).mean())
+    assert agent.actor.layers[-1].bias.grad.item() == pytest.approx(expected, rel=1e-5)
+    for _ in range(300):  # comes back from past +1 and settles at the lower bound
+        agent._actor_step(batch)
+    with torch.no_grad():
+        actions = agent.actor(batch.obs)
+        p = agent.actor.preactivation(batch.obs)
+    assert torch.all(actions < -0.9) and torch.all(p > -1.2)

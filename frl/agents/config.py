@@ -10,6 +10,7 @@ from frl.agents.precision import PRECISIONS
 
 NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
 ENCODERS: tuple[str, ...] = ("flat", "vehicles")
+ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
 WARMUP_POLICIES: tuple[str, ...] = ("uniform", "gap_acceptance")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
@@ -27,6 +28,7 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "policy_delay": 1,
     "terminal_fraction": 0.0,
     "explore_hold_probability": 0.0,
+    "actor_update": "tanh",
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -123,6 +125,13 @@ class DDPGConfig:
     """Share of each batch drawn from the transitions that end an episode (collisions and
     arrivals), the rest uniform; 0: uniform replay (Table II). The few dozen collisions
     a vehicle meets in 10,000 steps then reach the critic in every batch."""
+    actor_update: str = "tanh"
+    """How the actor bounds its action and learns: ``tanh`` (DDPG: a tanh output,
+    gradients through it), or ``inverting_gradients`` (Hausknecht and Stone 2016): a
+    clipped linear output whose gradient, dQ/da from the critic, is scaled by the room
+    left towards the bound it points to, and reversed past it. Through a saturated tanh
+    almost no gradient passes, so an actor stuck at full throttle cannot learn to brake
+    where its critic has learned that it should."""
     preactivation_l2: float = 0.0
     """Weight of the mean squared pre-tanh output in the actor loss: keeps the actor off
     tanh's flat tails, where no gradient can bring a saturated action back."""
@@ -243,6 +252,15 @@ class DDPGConfig:
             self.warmup_policy in WARMUP_POLICIES,
             f"warmup_policy must be one of {', '.join(WARMUP_POLICIES)}, "
             f"got {self.warmup_policy!r}",
+        )
+        _require(
+            self.actor_update in ACTOR_UPDATES,
+            f"actor_update must be one of {', '.join(ACTOR_UPDATES)}, got {self.actor_update!r}",
+        )
+        _require(
+            self.actor_update == "tanh" or self.preactivation_l2 == 0,
+            "preactivation_l2 keeps a tanh actor off its flat tails; with "
+            "actor_update=inverting_gradients leave it at 0",
         )
         _require(
             self.encoder in ENCODERS,

@@ -182,8 +182,15 @@ class DDPG:
         global torch RNG; then materialised and initialised from ``init_gen`` only.
         """
         cfg = self.config
+        clipped = kind is Actor and cfg.actor_update == "inverting_gradients"
         with torch.device("meta"):
-            network = kind(self.obs_dim, self.action_dim, cfg.hidden_sizes, self._encoder())
+            network = kind(
+                self.obs_dim,
+                self.action_dim,
+                cfg.hidden_sizes,
+                self._encoder(),
+                **({"output": "clip"} if clipped else {}),
+            )
         network = network.to_empty(device="cpu")
         if network.encoder is not None:
             network.encoder.reset_parameters(init_gen)
@@ -417,27 +424,52 @@ class DDPG:
         return (action.float() + noise).clamp_(-1.0, 1.0)
 
     def _actor_step(self, batch: Batch) -> Tensor:
-        """One actor update through the first critic; the detached loss."""
+        """One actor update through the first critic; the detached loss -Q."""
         cfg = self.config
         # Freeze the critic so backward computes only what the actor needs: no critic
         # weight gradients (and none for its sparse first layer), just dQ/da.
         self.critic.requires_grad_(False)
         try:
-            with self._autocast():
+            if cfg.actor_update == "inverting_gradients":
+                actor_loss = self._inverting_gradients_backward(batch)
+            else:
+                with self._autocast():
+                    if cfg.preactivation_l2 > 0:
+                        preactivation = self.actor.preactivation(batch.obs)
+                        q_policy = self.critic(batch.obs, torch.tanh(preactivation))
+                    else:
+                        q_policy = self.critic(batch.obs, self.actor(batch.obs))
+                actor_loss = -q_policy.mean()
                 if cfg.preactivation_l2 > 0:
-                    preactivation = self.actor.preactivation(batch.obs)
-                    q_policy = self.critic(batch.obs, torch.tanh(preactivation))
-                else:
-                    q_policy = self.critic(batch.obs, self.actor(batch.obs))
-            actor_loss = -q_policy.mean()
-            if cfg.preactivation_l2 > 0:
-                actor_loss = actor_loss + cfg.preactivation_l2 * preactivation.square().mean()
-            self.actor_optimizer.zero_grad(set_to_none=True)
-            actor_loss.backward()
+                    penalty = cfg.preactivation_l2 * preactivation.square().mean()
+                    actor_loss = actor_loss + penalty
+                self.actor_optimizer.zero_grad(set_to_none=True)
+                actor_loss.backward()
         finally:
             self.critic.requires_grad_(True)
         self.actor_optimizer.step()
         return actor_loss.detach()
+
+    def _inverting_gradients_backward(self, batch: Batch) -> Tensor:
+        """The actor's gradient by inverting gradients (Hausknecht and Stone 2016).
+
+        dQ/da at the clipped action is scaled by ``(1 - p) / 2`` where it asks for more
+        and ``(p + 1) / 2`` where it asks for less, ``p`` the unbounded output: it fades
+        as the output nears the bound it points to and turns round beyond it, so the
+        output stays within [-1, 1] and can always come back.
+        """
+        with self._autocast():
+            preactivation = self.actor.preactivation(batch.obs)
+        action = preactivation.detach().clamp(-1.0, 1.0).requires_grad_(True)
+        with self._autocast():
+            q_policy = self.critic(batch.obs, action)
+        (dq_da,) = torch.autograd.grad(q_policy.sum(), action)
+        room = preactivation.detach()
+        scale = torch.where(dq_da > 0, (1.0 - room) / 2.0, (room + 1.0) / 2.0)
+        surrogate = -(dq_da * scale * preactivation).sum() / preactivation.shape[0]
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        surrogate.backward()
+        return -q_policy.detach().mean()
 
     def critic_values(self, observations: Any, actions: Any) -> np.ndarray:
         """Q(s, a) of the online critic for a batch of observations and env-unit actions."""

@@ -42,12 +42,17 @@ def init_mlp_(layers: Sequence[nn.Module], generator: torch.Generator) -> None:
         layers[-1].bias.uniform_(-FINAL_LAYER_INIT, FINAL_LAYER_INIT, generator=generator)
 
 
-class Actor(nn.Module):
-    """Deterministic policy: flat observation -> action in [-1, 1] (tanh).
+ACTOR_OUTPUTS: tuple[str, ...] = ("tanh", "clip")
 
-    The agent maps [-1, 1] to the action bounds; keeping the network's range fixed keeps
-    its state dict independent of the action space's bounds. With an ``encoder`` the MLP
-    reads the encoder's output instead of the observation.
+
+class Actor(nn.Module):
+    """Deterministic policy: flat observation -> action in [-1, 1].
+
+    The output layer's value is bounded by ``tanh`` (DDPG's) or clipped to [-1, 1]
+    (``clip``, for inverting-gradient updates: ``DDPGConfig.actor_update``). The agent maps
+    [-1, 1] to the action bounds; keeping the network's range fixed keeps its state dict
+    independent of the action space's bounds. With an ``encoder`` the MLP reads the
+    encoder's output instead of the observation.
     """
 
     def __init__(
@@ -56,22 +61,29 @@ class Actor(nn.Module):
         action_dim: int,
         hidden_sizes: Sequence[int],
         encoder: nn.Module | None = None,
+        output: str = "tanh",
     ) -> None:
         super().__init__()
+        if output not in ACTOR_OUTPUTS:
+            raise ValueError(f"output must be one of {ACTOR_OUTPUTS}, got {output!r}")
+        self.output = output
         self.encoder = encoder
         in_features = obs_dim if encoder is None else encoder.out_features
         first = InputLinear(in_features, hidden_sizes[0])
         self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, action_dim))
 
     def preactivation(self, obs: Tensor | SparseRows) -> Tensor:
-        """The output layer's value before tanh (float32, also under autocast)."""
+        """The output layer's value before the bound (float32, also under autocast)."""
         x = obs if self.encoder is None else self.encoder(obs)
         for layer in self.layers[:-1]:
             x = torch.relu_(layer(x))  # in place: addmm's backward needs only its inputs
         return float32_layer(self.layers[-1], x)
 
     def forward(self, obs: Tensor | SparseRows) -> Tensor:
-        return torch.tanh(self.preactivation(obs))
+        preactivation = self.preactivation(obs)
+        if self.output == "clip":
+            return preactivation.clamp(-1.0, 1.0)
+        return torch.tanh(preactivation)
 
 
 class Critic(nn.Module):
