@@ -23,17 +23,22 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
-from cpu_settings import configure_cpu_training  # beside this script
 from gymnasium import spaces
 
 from frl.agents import DDPG, DDPGConfig, ReplayBuffer
 from frl.agents.precision import has_native_bf16, resolve_precision
 from frl.envs import TASKS, IntersectionEnv
+
+# The helpers beside this script, also under PYTHONSAFEPATH=1 (docs/reproduction.md).
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cpu_settings import configure_cpu_training
 
 GRID_SHAPE = (26, 18, 3)
 TABLE_II = {"n_step": 1, "warmup_hold_steps": 1.0}

@@ -25,7 +25,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from paired_runs import Run, load_groups, print_runs, print_summary, train_all  # beside this
+# The helpers beside this script, also under PYTHONSAFEPATH=1 (docs/reproduction.md).
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from paired_runs import Run, load_groups, print_runs, print_summary, train_all
 
 
 def parse_variant(text: str) -> tuple[str, list[str]]:

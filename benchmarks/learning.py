@@ -20,6 +20,8 @@ import sys
 import time
 from pathlib import Path
 
+# The helpers beside this script, also under PYTHONSAFEPATH=1 (docs/reproduction.md).
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 from paired_runs import Run, load_groups, model_metric, print_runs, print_summary, train_all
 
 SCHEMES = ("central", "separate", "fedavg")
