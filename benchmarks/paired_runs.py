@@ -92,12 +92,16 @@ def yardstick_metric(yardstick: str, name: str, task: str):  # type: ignore[no-u
 
 
 def estimate_text(estimate: Estimate | None, scale: float, unit: str, signed: bool) -> str:
+    """``4.36 ± 1.11``, ``20.0 ± 4.3%`` or, for a difference of rates, ``+12.3 ± 5.2 pp``."""
     if estimate is None:
         return "–"
-    number = f"{estimate.mean * scale:+.2f}" if signed else f"{estimate.mean * scale:.2f}"
+    digits = 1 if unit else 2
+    sign = "+" if signed else ""
+    number = f"{estimate.mean * scale:{sign}.{digits}f}"
+    suffix = (" pp" if signed else "%") if unit else ""
     if estimate.half_width is None:
-        return f"{number}{unit} (n=1)"
-    return f"{number}{unit} ± {estimate.half_width * scale:.2f}"
+        return f"{number}{suffix} (n=1)"
+    return f"{number} ± {estimate.half_width * scale:.{digits}f}{suffix}"
 
 
 def print_runs(groups: dict[str, list[RunRecord]], task: str) -> None:
