@@ -7,7 +7,7 @@ import pytest
 import torch
 from gymnasium import spaces
 
-from frl.agents import DDPG, DDPGConfig
+from frl.agents import DDPG, DDPGConfig, SparseRows
 from frl.agents.vehicle_encoder import VehicleSetEncoder
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
@@ -68,6 +68,20 @@ def test_an_empty_grid_encodes_to_zero_and_a_batch_keeps_its_rows_apart() -> Non
     torch.testing.assert_close(out[1:2], module(grid_with((1, 1, 0.2, 0.0))))
 
 
+def test_sparse_rows_give_the_dense_grids_encoding_bit_for_bit() -> None:
+    module = encoder(width=16)
+    batch = torch.cat(
+        [
+            grid_with((2, 4, 0.5, 1.0), (20, 9, 0.0, -1.0)),  # a stopped car: speed not stored
+            grid_with(),
+            grid_with((13, 2, 0.3, 0.0), (25, 17, 0.7, 1.5)),  # heading 0: not stored
+            grid_with((0, 0, 0.0, 0.0)),  # only the occupancy channel
+        ]
+    )
+    sparse = SparseRows.from_dense(batch)
+    assert torch.equal(module(sparse), module(batch))
+
+
 def test_a_nearby_position_gives_a_nearby_encoding() -> None:
     """Positions are numbers, not one-hot inputs: the next cell over is close."""
     module = encoder(width=32)
@@ -107,7 +121,7 @@ def run(agent: DDPG, steps: int, seed: int = 0) -> None:
 
 def test_an_agent_with_the_encoder_trains_saves_and_averages_by_name(tmp_path: Path) -> None:
     agent = DDPG(GRID, ACCEL, SMALL, seed=1)
-    assert not agent.sparse and agent.buffer.sparse  # dense batches from compact storage
+    assert agent.sparse and agent.buffer.sparse  # the encoder reads the non-zeros
     state = agent.federated_state()
     assert state["actor.encoder.layers.0.weight"].shape == (16, 4)
     assert state["critic.layers.0.weight"].shape == (32, 32)  # 2 x width in

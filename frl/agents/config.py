@@ -276,10 +276,9 @@ class DDPGConfig:
         )
 
     def use_sparse(self, num_features: int) -> bool:
-        """Whether observations of ``num_features`` features take the sparse path (the
-        flat encoder's first layer; the vehicles encoder reads dense batches)."""
-        if self.encoder != "flat":
-            return False
+        """Whether observations of ``num_features`` features reach the networks as
+        :class:`frl.agents.SparseRows` (the flat encoder's sparse first layer, or the
+        vehicles encoder reading the non-zeros)."""
         if self.sparse_input == "auto":
             return num_features >= self.sparse_min_features
         return bool(self.sparse_input)

@@ -18,9 +18,15 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from frl.agents.sparse_linear import SparseRows
+
 
 class VehicleSetEncoder(nn.Module):
     """Flat grids ``[batch, H * W * C]`` -> ``[batch, 2 * width]`` (sum and max pooling).
+
+    Reads dense batches or :class:`SparseRows` (the replay buffer's compact form, whose
+    rows list their non-zeros in increasing feature order): the same vehicles, in the
+    same order, from either.
 
     Args:
         grid_shape: ``(H, W, C)``; the last channel is 1 in occupied cells, 0 elsewhere
@@ -59,18 +65,38 @@ class VehicleSetEncoder(nn.Module):
                 layer.weight.uniform_(-bound, bound, generator=generator)
                 layer.bias.uniform_(-bound, bound, generator=generator)
 
-    def forward(self, flat: Tensor) -> Tensor:
-        rows, columns, channels = self.grid_shape
-        grid = flat.reshape(flat.shape[0], rows * columns, channels)
-        sample, cell = torch.nonzero(grid[..., -1] > 0, as_tuple=True)
-        vehicles = torch.cat([self.positions[cell], grid[sample, cell, :-1]], dim=1)
+    def forward(self, flat: Tensor | SparseRows) -> Tensor:
+        if isinstance(flat, SparseRows):
+            batch = flat.batch_size
+            sample, cell, channels = self._vehicles_of_rows(flat)
+        else:
+            rows, columns, width = self.grid_shape
+            batch = flat.shape[0]
+            grid = flat.reshape(batch, rows * columns, width)
+            sample, cell = torch.nonzero(grid[..., -1] > 0, as_tuple=True)
+            channels = grid[sample, cell, :-1]
+        vehicles = torch.cat([self.positions[cell], channels], dim=1)
         hidden = vehicles
         for layer in self.layers:
             hidden = torch.relu(layer(hidden))
-        pooled_sum = hidden.new_zeros(flat.shape[0], self.width).index_add_(0, sample, hidden)
+        pooled_sum = hidden.new_zeros(batch, self.width).index_add_(0, sample, hidden)
         # ReLU outputs are >= 0, so a max that includes the zero start is the vehicles' max
         # (and 0 for an observation without any vehicle).
-        pooled_max = hidden.new_zeros(flat.shape[0], self.width).scatter_reduce_(
+        pooled_max = hidden.new_zeros(batch, self.width).scatter_reduce_(
             0, sample[:, None].expand_as(hidden), hidden, "amax", include_self=True
         )
         return torch.cat([pooled_sum, pooled_max], dim=1)
+
+    def _vehicles_of_rows(self, rows: SparseRows) -> tuple[Tensor, Tensor, Tensor]:
+        """(sample, cell, the cell's other channels) of every occupied cell, in the order
+        of the dense path: by sample, then cell. A cell's channels that are zero are not
+        stored; each is looked up by its key (row * features + index), which increases
+        along the rows."""
+        width = self.grid_shape[2]
+        row_ids = rows.row_ids()
+        keys = row_ids * rows.num_features + rows.indices
+        occupied = torch.nonzero((rows.indices % width == width - 1) & (rows.values > 0))[:, 0]
+        wanted = keys[occupied, None] - (width - 1) + torch.arange(width - 1)
+        found = torch.searchsorted(keys, wanted).clamp_(max=max(keys.numel() - 1, 0))
+        channels = torch.where(keys[found] == wanted, rows.values[found], 0.0)
+        return row_ids[occupied], rows.indices[occupied] // width, channels
