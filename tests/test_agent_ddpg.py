@@ -8,6 +8,7 @@ import torch
 from gymnasium import spaces
 
 from frl.agents import DDPG, CheckpointError, DDPGConfig, SparseRows, is_target_key
+from frl.agents.precision import autocast
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
 ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
@@ -296,7 +297,7 @@ def test_critic_values_are_the_critics_q_of_env_unit_actions() -> None:
     obs = np.stack([grid_obs(rng) for _ in range(4)])
     actions = np.array([[-1.0], [-0.5], [0.25], [1.0]], np.float32)
     values = agent.critic_values(obs, actions)
-    with torch.no_grad():
+    with torch.no_grad(), autocast(agent.device, agent.precision):
         x = torch.from_numpy(obs.reshape(4, -1))
         inputs = SparseRows.from_dense(x) if agent.sparse else x
         expected = agent.critic(inputs, torch.from_numpy(actions)).numpy()

@@ -79,7 +79,8 @@ def test_held_warm_up_actions_last_geometric_stretches():
 
 
 def test_the_preactivation_penalty_pulls_a_saturated_actor_back():
-    config = DDPGConfig(**{**SMALL.to_dict(), "preactivation_l2": 1.0, "hidden_sizes": (16,)})
+    options = {"preactivation_l2": 1.0, "hidden_sizes": (16,), "actor_update": "tanh"}
+    config = DDPGConfig(**{**SMALL.to_dict(), **options})
     agent = DDPG(GRID, ACCEL, config)
     with torch.no_grad():  # saturate the actor: a large output bias
         agent.actor.layers[-1].bias.fill_(5.0)

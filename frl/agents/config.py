@@ -41,9 +41,11 @@ def _require(condition: bool, message: str) -> None:
 
 @dataclass(frozen=True)
 class DDPGConfig:
-    """DDPG hyperparameters: the paper's Table II where it gives a value, plus 5-step
-    targets and held warm-up actions (``n_step=1, warmup_hold_steps=1`` is Table II's
-    agent exactly: ``agent=ddpg-paper``).
+    """DDPG hyperparameters: the paper's Table II where it gives a value, plus frl's
+    choices that its learning studies credited (docs/results.md): 5-step targets, held
+    warm-up actions, an actor learning by inverting gradients, and bf16 matmuls where the
+    hardware has them. For a grid observation frl's training adds the vehicles encoder
+    (``agent=ddpg``); ``agent=ddpg-paper`` is Table II exactly.
 
     Noise parameters are in normalised action units: the actor's tanh output lives in
     [-1, 1] and is scaled to the action bounds only after noise is added. ``noise_sigma``
@@ -125,7 +127,7 @@ class DDPGConfig:
     """Share of each batch drawn from the transitions that end an episode (collisions and
     arrivals), the rest uniform; 0: uniform replay (Table II). The few dozen collisions
     a vehicle meets in 10,000 steps then reach the critic in every batch."""
-    actor_update: str = "tanh"
+    actor_update: str = "inverting_gradients"
     """How the actor bounds its action and learns: ``tanh`` (DDPG: a tanh output,
     gradients through it), or ``inverting_gradients`` (Hausknecht and Stone 2016): a
     clipped linear output whose gradient, dQ/da from the critic, is scaled by the room
@@ -147,7 +149,7 @@ class DDPGConfig:
     (:class:`frl.agents.vehicle_encoder.VehicleSetEncoder`, one per network)."""
     encoder_width: int = 64
     """Width of the ``vehicles`` encoder's per-vehicle MLP; it hands 2x this to the MLP."""
-    precision: str = "float32"
+    precision: str = "auto"
     """What the forward and backward passes of updates and acting compute in: ``float32``,
     ``bf16`` (autocast; weights, optimizer state, targets, output layers and losses stay
     float32) or ``auto`` (bf16 where the device computes it natively, else float32);
