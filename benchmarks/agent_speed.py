@@ -15,8 +15,10 @@ frl's figures and says how to add the comparison.
         [--precisions float32,bf16] [--option n_step=1 ...] [--dense] [--skip-sb3]
 
 ``--option KEY=VALUE`` sets a DDPGConfig field of the frl agents (repeatable). frl's
-rows are Table II's agent (``agent=ddpg-paper``: one-step targets) and frl's default
-agent (5-step targets, held warm-up actions) at its default precision.
+rows are Table II's agent (``agent=ddpg-paper``: one-step targets, an MLP on the flat
+grid, a tanh actor) at each precision and frl's default agent (``agent=ddpg``: 5-step
+targets, held warm-up actions, the vehicles encoder, inverting gradients) at its default
+precision.
 """
 
 from __future__ import annotations
@@ -26,11 +28,13 @@ import importlib.util
 import sys
 import time
 from collections.abc import Callable
+from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
 import torch
 from gymnasium import spaces
+from omegaconf import OmegaConf
 
 from frl.agents import DDPG, DDPGConfig, ReplayBuffer
 from frl.agents.precision import has_native_bf16, resolve_precision
@@ -41,8 +45,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu_settings import configure_cpu_training
 
 GRID_SHAPE = (26, 18, 3)
-TABLE_II = {"n_step": 1, "warmup_hold_steps": 1.0}
+TABLE_II = {"n_step": 1, "warmup_hold_steps": 1.0, "encoder": "flat", "actor_update": "tanh"}
 """What frl's default agent adds to Table II, switched off (``agent=ddpg-paper``)."""
+
+
+def default_agent_fields() -> dict:
+    """The DDPGConfig fields of frl's training default, ``agent=ddpg`` (its preset file),
+    which adds the vehicles encoder to the dataclass's defaults."""
+    preset = OmegaConf.to_container(OmegaConf.load(files("frl.conf") / "agent" / "ddpg.yaml"))
+    preset.pop("name")
+    return DDPGConfig.from_dict(preset).to_dict()
+
+
 BLOCK = 25
 
 
@@ -261,8 +275,10 @@ def main() -> None:
     if options:
         print(f"options: {options}")
 
+    defaults = default_agent_fields()
+
     def config(**fields: object) -> DDPGConfig:
-        return DDPGConfig(**{**DDPGConfig().to_dict(), **fields})
+        return DDPGConfig(**{**defaults, **fields})
 
     learners: list[Learner] = [
         FrlLearner(
