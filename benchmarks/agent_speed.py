@@ -282,7 +282,9 @@ def main() -> None:
 
     learners: list[Learner] = [
         FrlLearner(
-            f"frl, Table II agent, {name}", config(**TABLE_II, **options, precision=name), scenes
+            f"frl, Table II agent, {name}",
+            config(**{**TABLE_II, **options, "precision": name}),
+            scenes,
         )
         for name in precisions
     ]
@@ -293,7 +295,7 @@ def main() -> None:
         FrlLearner(f"frl, default agent, {default.precision}{resolved}", default, scenes)
     )
     if args.dense:
-        dense = config(**TABLE_II, **options, sparse_input=False)
+        dense = config(**{**TABLE_II, **options, "sparse_input": False})
         learners.append(FrlLearner("frl, Table II agent, dense first layer", dense, scenes))
     if with_sb3:
         learners.append(StableBaselines3Learner(scenes))
