@@ -24,6 +24,8 @@ from frl.report.aggregate import (
     IntervalPoint,
     RewardPoint,
     SchemeCurves,
+    fig3_runs,
+    fig6_runs,
 )
 from frl.report.claims import Claim
 from frl.report.collect import Collection
@@ -183,6 +185,18 @@ def claims_block(claims: list[Claim]) -> str:
 
 def method_block(collection: Collection, settings: CurveSettings) -> str:
     level = f"{CONFIDENCE:.0%}"
+    fig3_borrows = any(borrowed for _, borrowed in fig3_runs(collection).values())
+    fig6_borrows = any(borrowed for _, borrowed in fig6_runs(collection).values())
+    fig3_source = (
+        "its paper-reward point shared with Fig. 4's runs"
+        if fig3_borrows
+        else "every point from its own runs"
+    )
+    fig6_source = (
+        f"Fig. 6's interval {PAPER_INTERVAL} is Fig. 4's FedAvg runs"
+        if fig6_borrows
+        else "Fig. 6 has its own runs at every interval"
+    )
     return f"""- Source: `{collection.root}`, {collection.count} finished run(s); the runs
   table at the end gives each one's seed, wall time (training, summed over the sessions
   of a resumed run, plus testing) and commit.
@@ -202,8 +216,8 @@ def method_block(collection: Collection, settings: CurveSettings) -> str:
   included (the paper's convention; it makes collisions look fast); "travel time
   (arrived)" averages arrived episodes only.
 - Fig. 3 is trained with the scheme named in its table (Central-DDPG by default: one
-  agent, a random task per episode, tested on every task), its paper-reward point shared
-  with Fig. 4's runs; Fig. 6's interval {PAPER_INTERVAL} is Fig. 4's FedAvg runs."""
+  agent, a random task per episode, tested on every task), {fig3_source};
+  {fig6_source}."""
 
 
 def yardstick_returns(yardsticks: dict[str, EvalSummary] | None) -> str:
