@@ -5,9 +5,9 @@ python -m frl.demo [--episodes N] [--seed S] [--traffic paper|dense] [--gif PATH
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
+from frl.cli import OneLineParser, seed_value
 from frl.envs import TASKS, TRAFFIC_PRESETS, EnvConfig, IntersectionEnv, traffic_preset
 from frl.episodes import run_episodes, summarize
 from frl.policies import GapAcceptancePolicy
@@ -17,9 +17,9 @@ GIF_TASK = "left"
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="python -m frl.demo", description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=5, help="episodes per task")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=seed_value, default=0)
     parser.add_argument("--traffic", choices=list(TRAFFIC_PRESETS), default="paper")
     parser.add_argument("--gif", type=Path, default=Path("outputs/demo.gif"))
     args = parser.parse_args(argv)

@@ -18,7 +18,6 @@ cached per traffic and seeds (frl.yardsticks). Results are merged into
 
 from __future__ import annotations
 
-import argparse
 import functools
 import os
 import sys
@@ -29,6 +28,7 @@ from typing import Any
 from frl import run_directory as rundir
 from frl import yardsticks as yardstick_cache
 from frl.agents.checkpoint import read_checkpoint
+from frl.cli import OneLineParser, seed_value
 from frl.envs import TASKS, TRAFFIC_PRESETS, EnvConfig, IntersectionEnv, RewardConfig
 from frl.envs.config import traffic_name
 from frl.episodes import (
@@ -350,9 +350,7 @@ def _progress_bar(enabled: bool, total: int, description: str) -> Any:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m frl.evaluate", description=__doc__.splitlines()[0]
-    )
+    parser = OneLineParser(prog="python -m frl.evaluate", description=__doc__.splitlines()[0])
     parser.add_argument(
         "run_dir", type=Path, nargs="?", help="a run directory written by frl.train"
     )
@@ -368,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--seed",
-        type=int,
+        type=seed_value,
         help="with --policy and no RUN_DIR: the run seed whose test seeds to use (0)",
     )
     parser.add_argument("--episodes", type=int, default=None, help="test episodes per task")

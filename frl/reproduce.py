@@ -19,7 +19,6 @@ those committed files. Ctrl-C stops the sweep; the next call picks up where it w
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
 import shlex
@@ -31,6 +30,7 @@ from typing import Any
 
 from hydra.experimental.callback import Callback
 
+from frl.cli import OneLineParser
 from frl.fileio import read_json
 from frl.report.collect import FIGURE_DIRS
 from frl.report.runs import RunDataError, export_run, exported_results, has_complete_results
@@ -167,7 +167,7 @@ def _parse_seeds(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="python -m frl.reproduce",
         description="Run the paper's Section IV sweeps (resumable), export each finished run "
         "and build docs/results.md. Arguments after -- are passed to every sweep as Hydra "

@@ -20,6 +20,7 @@ Only :mod:`frl.fileio` sits below this module, so anything in frl may import it.
 from __future__ import annotations
 
 import io
+import json
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -111,9 +112,23 @@ RoundHook = Callable[[RunState], None]
 
 # ------------------------------------------------------------------ state
 def read_state(run_dir: Path) -> RunState | None:
-    """The run's last committed state; None before its first commit."""
+    """The run's last committed state; None before its first commit.
+
+    Raises:
+        RunDirectoryError: the state file is there but unreadable (not JSON, or no
+            object), naming the file. frl writes it atomically, so this is damage done
+            outside frl.
+    """
     path = Path(run_dir) / STATE_FILE
-    return RunState.from_dict(read_json(path)) if path.exists() else None
+    if not path.exists():
+        return None
+    try:
+        data = read_json(path)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise RunDirectoryError(f"{path}: not a readable run state ({error})") from None
+    if not isinstance(data, dict):
+        raise RunDirectoryError(f"{path}: not a readable run state (no JSON object)")
+    return RunState.from_dict(data)
 
 
 def write_state(run_dir: Path, state: RunState) -> None:

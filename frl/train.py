@@ -16,11 +16,16 @@ and exit code 2, before anything runs.
 
 from __future__ import annotations
 
+import contextlib
 import sys
+import traceback
 
 from omegaconf import DictConfig
 
-from frl.train_config import ConfigError, one_line_error, register_configs
+from frl.federation.workers import ClientFailure
+from frl.run_directory import RunDirectoryError
+from frl.run_directory import resolve as resolve_run_directory
+from frl.train_config import ConfigError, one_line_error, register_configs, validate
 from frl.training import train
 
 __all__ = ["main", "train"]
@@ -50,18 +55,48 @@ def main() -> None:
         except ConfigError as error:
             print(f"frl.train: config error: {error}", file=sys.stderr)
             raise SystemExit(2) from None
+        except ClientFailure as failure:
+            print(f"frl.train: {failure_summary(failure)}", file=sys.stderr)
+            raise SystemExit(1) from None
         evaluation = results.get("evaluation")
         return evaluation["average"]["average_reward"] if evaluation else None
 
     hydra_main()
 
 
+FAILURE_LOG = "failure.log"
+"""Where a stopped run's full traceback goes, in its run directory."""
+
+
+def failure_summary(failure: ClientFailure) -> str:
+    """One line for a run a vehicle stopped: which vehicle, why, what is saved and the
+    command that continues it; the full traceback is appended to ``RUN_DIR/failure.log``."""
+    reason = failure.reason.strip().splitlines()[0] if failure.reason.strip() else "no reason"
+    line = f"vehicle {failure.client} failed: {reason}"
+    if failure.run_dir is None:
+        return line
+    log_path = failure.run_dir / FAILURE_LOG
+    with contextlib.suppress(OSError), log_path.open("a") as log_file:
+        log_file.write("".join(traceback.format_exception(failure)) + "\n")
+    rounds = failure.completed_rounds or 0
+    saved = (
+        f"rounds 1-{rounds} are saved"
+        if rounds > 1
+        else ("round 1 is saved" if rounds == 1 else "no round was completed")
+    )
+    return (
+        f"{line}; {saved}; continue with: python -m frl.train resume={failure.run_dir} "
+        f"(traceback in {log_path})"
+    )
+
+
 def override_error(argv: list[str]) -> str | None:
     """Why the overrides in ``argv`` do not compose, in one line; None if they do.
 
     Hydra itself would print a multi-line report. Sweeps (``seed=0,1,2``) are checked
-    value by value; a command line with Hydra's own flags (``--help``, ``--cfg``,
-    ``--config-dir``, ...) is left to Hydra.
+    value by value, each composed config also by :func:`frl.train_config.validate`, so a
+    bad value is refused before Hydra creates any run directory; a command line with
+    Hydra's own flags (``--help``, ``--cfg``, ``--config-dir``, ...) is left to Hydra.
     """
     from hydra import compose, initialize_config_module
     from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -90,10 +125,21 @@ def override_error(argv: list[str]) -> str | None:
     with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
         for overrides in candidates:
             try:
-                compose(config_name="config", overrides=overrides)
+                cfg = compose(config_name="config", overrides=overrides)
+                validate(cfg)
+                _check_resumed_directory(cfg.resume)
             except (HydraException, OmegaConfBaseException) as error:
                 return one_line_error(error)
+            except (ConfigError, RunDirectoryError) as error:
+                return str(error)
     return None
+
+
+def _check_resumed_directory(resume: object) -> None:
+    """``resume=RUN_DIR`` must name a readable run, checked before Hydra makes a directory
+    of its own; ``true``, ``false`` and ``auto`` are resolved later."""
+    if isinstance(resume, str) and resume.lower() not in ("true", "false", "auto"):
+        resolve_run_directory(resume, configured=None, default=None)
 
 
 if __name__ == "__main__":

@@ -263,6 +263,8 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         )
     if agent.pop("name") != "ddpg":
         raise ConfigError("unknown agent; frl implements agent=ddpg only")
+    if data["seed"] < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {data['seed']!r}")
     if data["eval_episodes"] < 0:
         raise ConfigError(
             f"eval_episodes must be a non-negative integer, got {data['eval_episodes']!r}"

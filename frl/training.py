@@ -21,6 +21,7 @@ from frl.agents.precision import precision_report
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.coordinator import Coordinator
 from frl.federation.tensorboard import TrainingLogger, resume_purge_step
+from frl.federation.workers import ClientFailure
 from frl.fileio import read_json, write_json_atomic
 from frl.provenance import versions
 from frl.run_directory import RoundHook, RunDirectoryError, RunState
@@ -48,7 +49,8 @@ def train(
     Raises:
         ConfigError: invalid configuration, or no run directory to use, before any
             process starts.
-        frl.federation.ClientFailure: a client's worker raised, died or timed out.
+        frl.federation.ClientFailure: a client's worker raised, died or timed out; its
+            ``run_dir`` and ``completed_rounds`` say what ``resume=`` continues from.
     """
     job_started = time.perf_counter()
     settings = validate(cfg)
@@ -92,7 +94,12 @@ def train(
 
     state = (rundir.read_state(run_dir) if resuming else None) or RunState()
     if not state.training_finished:
-        state = train_rounds(settings, run_dir, state, progress, on_round_end)
+        try:
+            state = train_rounds(settings, run_dir, state, progress, on_round_end)
+        except ClientFailure as failure:
+            failure.run_dir = run_dir
+            failure.completed_rounds = (rundir.read_state(run_dir) or RunState()).completed_rounds
+            raise
 
     results = training_results(settings, state, run_dir)
     previous = rundir.read_results(run_dir)

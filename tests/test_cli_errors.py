@@ -6,13 +6,17 @@ Most cases call the entry points in this process (fast); one per command runs
 
 from __future__ import annotations
 
+import json
+import multiprocessing
+import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 from omegaconf import OmegaConf
-from train_helpers import compose_config
+from train_helpers import TINY_OVERRIDES, compose_config
 
 from frl import evaluate, train
 from frl.fileio import write_json_atomic
@@ -116,3 +120,64 @@ def test_frl_evaluate_with_a_corrupt_config(run_cli, finished_looking_run):
     (finished_looking_run / "config.yaml").write_text("seed: [\n")
     result = run_cli("frl.evaluate", str(finished_looking_run), cwd=finished_looking_run)
     assert_one_line_error(result, "frl.evaluate: error:", "is not a readable config")
+
+
+def test_a_negative_seed_is_refused_before_any_directory(run_cli, tmp_path):
+    result = run_cli("frl.train", "seed=-1", cwd=tmp_path)
+    assert_one_line_error(result, "frl.train: config error:", "seed must be a non-negative")
+    assert list(tmp_path.iterdir()) == []  # not even Hydra's output directory
+
+
+@pytest.mark.parametrize("seed", ["-3", "1.5"])
+def test_frl_evaluate_refuses_a_seed_that_is_no_seed(run_cli, seed, tmp_path):
+    result = run_cli("frl.evaluate", "--policy", "oracle", "--seed", seed, cwd=tmp_path)
+    assert_one_line_error(result, "python -m frl.evaluate: error:", "a seed is a non-negative")
+
+
+def test_python_m_frl_demo_refuses_a_negative_seed(tmp_path):
+    result = run_for_real("frl.demo", "--seed", "-2", cwd=tmp_path)
+    assert_one_line_error(result, "python -m frl.demo: error:", "a seed is a non-negative")
+
+
+@pytest.mark.parametrize("content", ["{not json", "[1, 2]"])
+def test_resuming_a_run_whose_state_is_corrupt(run_cli, finished_looking_run, content):
+    (finished_looking_run / "state.json").write_text(content)
+    cwd = finished_looking_run.parent
+    result = run_cli("frl.train", f"resume={finished_looking_run}", cwd=cwd)
+    assert_one_line_error(result, "frl.train: config error:", "state.json: not a readable run")
+    assert sorted(p.name for p in cwd.iterdir()) == ["run"]  # no Hydra directory either
+
+
+def test_a_vehicle_that_dies_stops_the_run_in_one_line_that_says_how_to_resume(
+    run_cli, monkeypatch, tmp_path
+):
+    real_train = train.train
+
+    def kill_a_worker_after_round_1(state):
+        if state.completed_rounds == 1:
+            victim = next(p for p in multiprocessing.active_children() if "client1" in p.name)
+            os.kill(victim.pid, signal.SIGKILL)
+
+    monkeypatch.setattr(
+        train, "train", lambda cfg: real_train(cfg, on_round_end=kill_a_worker_after_round_1)
+    )
+    run_dir = tmp_path / "run"
+    overrides = [*TINY_OVERRIDES, "eval_episodes=0", "federation.tasks=[left,right]"]
+    result = run_cli("frl.train", *overrides, f"run_dir={run_dir}", cwd=tmp_path)
+
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr + result.stdout
+    ours = [line for line in result.stderr.splitlines() if line.startswith("frl.train:")]
+    assert len(ours) == 1, result.stderr
+    assert "vehicle client1_right failed" in ours[0] and "SIGKILL" in ours[0]
+    assert "round 1 is saved" in ours[0]
+    command = f"python -m frl.train resume={run_dir}"
+    assert command in ours[0]
+    assert "Traceback" in (run_dir / "failure.log").read_text()
+    assert multiprocessing.active_children() == []
+
+    monkeypatch.setattr(train, "train", real_train)  # the printed command finishes the run
+    resumed = run_cli("frl.train", f"resume={run_dir}", cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    state = json.loads((run_dir / "state.json").read_text())
+    assert state["completed_rounds"] == 3 and state["training_finished"]

@@ -35,6 +35,7 @@ import time
 import traceback
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection, wait
+from pathlib import Path
 from typing import Any
 
 _PROTOCOL = pickle.HIGHEST_PROTOCOL
@@ -62,6 +63,10 @@ class ClientFailure(RuntimeError):
         self.reason = reason
         self.exitcode = exitcode
         self.remote_traceback = remote_traceback
+        self.run_dir: Path | None = None
+        """The run it stopped, set by :func:`frl.training.train`."""
+        self.completed_rounds: int | None = None
+        """Rounds committed to the run directory before it stopped (what resume keeps)."""
 
 
 def available_cores() -> int:

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 
+from frl.cli import OneLineParser
 from frl.report.aggregate import CurveSettings
 from frl.report.build import DEFAULT_OUT, MissingDependency, build_report
 from frl.report.runs import RunDataError
@@ -12,7 +12,7 @@ from frl.report.runs import RunDataError
 
 def main(argv: list[str] | None = None) -> int:
     defaults = CurveSettings()
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="python -m frl.report",
         description="Plot the paper's Figs. 3-6 and write the markdown report from runs "
         "(ROOT/fig4, fig6, fig3: run directories or exported data directories).",

@@ -7,7 +7,6 @@ training reward (the Fig. 4 curve) and the test metrics averaged over the tasks.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from collections.abc import Iterator, Sequence
@@ -15,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from frl.cli import OneLineParser
 from frl.report.aggregate import CurveSettings, reward_curve
 from frl.report.markdown import table
 from frl.report.runs import RunDataError, RunRecord, load_run
@@ -99,7 +99,7 @@ def _percent(value: float | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="python -m frl.report.compare",
         description="Compare finished runs (run or exported data directories) side by side.",
     )
