@@ -3,7 +3,8 @@
 Shared by benchmarks/learning.py (schemes x seeds) and benchmarks/agent_study.py (agent
 variants x seeds): each run is a name (a group: a scheme, a variant) and a seed, and
 every difference is taken seed by seed, where a model and the yardsticks tested beside
-it met the same traffic.
+it met the same traffic. The intervals need SciPy: ``pip install -c constraints.txt -e
+'.[report]'`` (in ``.[dev]`` too).
 """
 
 from __future__ import annotations

@@ -4,8 +4,9 @@
 
 Every policy meets the same test seeds (those of a run with ``--seed``, as
 ``python -m frl.evaluate`` uses). Prints, per preset, task and policy: the average
-return with its 95% t interval, the collision and arrival rates with 95% Wilson
-intervals, the mean travel time of the arrivals, and the wall time; then the
+return with its 95% normal-approximation interval (mean ± 1.96 standard errors over the
+episodes), the collision and arrival rates with 95% Wilson intervals (SciPy, the
+``report`` extra), the mean travel time of the arrivals, and the wall time; then the
 averages over the three tasks (unweighted, as the paper averages). Results are cached
 (frl.yardsticks), so a second call prints at once; the wall time shown is then the
 cache's.
@@ -21,24 +22,17 @@ from frl.envs import TASKS, TRAFFIC_PRESETS
 from frl.episodes import average_over_tasks
 from frl.evaluate import default_settings, evaluate_policies
 from frl.policies import YARDSTICK_LABELS, YARDSTICKS
+from frl.report.stats import wilson_interval
 
-
-def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
-    """The 95% Wilson score interval of a proportion."""
-    if trials == 0:
-        return (math.nan, math.nan)
-    p = successes / trials
-    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
-    half = (
-        z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
-    )
-    return (centre - half, centre + half)
+Z_95 = 1.96
+"""The normal quantile of the return's 95% interval: hundreds of episodes per task, so
+the t quantile (1.97 at 299 degrees of freedom) would change no printed digit."""
 
 
 def rate(summary: dict, key: str) -> str:
     n = summary["episodes"]
     k = round(summary[key] * n)
-    low, high = wilson(k, n)
+    low, high = wilson_interval(k, n)
     return f"{k / n:.1%} [{low:.1%}, {high:.1%}]"
 
 
@@ -65,7 +59,7 @@ def main() -> None:
             for task in TASKS:
                 m = tables[task]
                 sd = m["return_std"]
-                interval = f" ± {1.96 * sd / math.sqrt(m['episodes']):.2f}" if sd else ""
+                interval = f" ± {Z_95 * sd / math.sqrt(m['episodes']):.2f}" if sd else ""
                 print(
                     f"| {traffic} | {task} | {YARDSTICK_LABELS[name]} | "
                     f"{m['average_reward']:.2f}{interval} | {rate(m, 'collision_rate')} | "

@@ -12,6 +12,7 @@ from frl.report.stats import (
     mean_ci,
     moving_average,
     t_quantile,
+    wilson_interval,
 )
 
 
@@ -21,6 +22,20 @@ from frl.report.stats import (
 )
 def test_t_quantile_matches_the_tables(df, expected):
     assert t_quantile(0.975, df) == pytest.approx(expected, abs=1e-5)
+
+
+def test_the_wilson_interval_by_hand():
+    # 5 of 100: centre (p + z^2/2n) / (1 + z^2/n), half-width
+    # z sqrt(p(1-p)/n + z^2/4n^2) / (1 + z^2/n), z = 1.959964
+    z, n, p = 1.959964, 100, 0.05
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    low, high = wilson_interval(5, 100)
+    assert (low, high) == pytest.approx((centre - half, centre + half), abs=1e-6)
+    # none of 300: [0, (z^2/n) / (1 + z^2/n)], not the Wald interval's empty [0, 0]
+    none_low, none_high = wilson_interval(0, 300)
+    assert none_low == 0.0 and none_high == pytest.approx((z * z / 300) / (1 + z * z / 300))
+    assert all(math.isnan(x) for x in wilson_interval(0, 0))
 
 
 def test_mean_ci_is_the_t_interval_over_seeds():

@@ -26,13 +26,16 @@ trained on the paper's Table II agent (``agent=ddpg-paper``)::
 
 
 class MissingDependency(RuntimeError):
-    """matplotlib is not installed."""
+    """matplotlib or SciPy (the report extra) is not installed."""
 
 
 def require_matplotlib() -> None:
-    if importlib.util.find_spec("matplotlib") is None:
+    """Raise :class:`MissingDependency` unless the report extra (matplotlib, SciPy) is there."""
+    missing = [name for name in ("matplotlib", "scipy") if importlib.util.find_spec(name) is None]
+    if missing:
         raise MissingDependency(
-            "frl.report needs matplotlib: pip install -c constraints.txt -e '.[report]'"
+            f"frl.report needs {' and '.join(missing)}: "
+            "pip install -c constraints.txt -e '.[report]'"
         )
 
 
@@ -47,7 +50,7 @@ def build_report(
     not drawn).
 
     Raises:
-        MissingDependency: without matplotlib.
+        MissingDependency: without matplotlib or SciPy.
         frl.report.runs.RunDataError: ``root`` is missing or holds no finished run.
     """
     settings = settings or CurveSettings()

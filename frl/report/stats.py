@@ -1,6 +1,7 @@
 """Statistics of the report: confidence intervals over seeds, smoothing, threshold steps.
 
-Pure functions on numpy arrays, tested against hand-computed numbers.
+Pure functions on numpy arrays, tested against hand-computed numbers; the t quantile and
+the Wilson interval come from SciPy (the ``report`` extra).
 """
 
 from __future__ import annotations
@@ -32,41 +33,32 @@ class Estimate:
 
 
 def t_quantile(probability: float, df: int) -> float:
-    """Quantile of Student's t distribution with ``df`` degrees of freedom (no scipy).
-
-    Bisection on the CDF, which is integrated from the density with Simpson's rule on
-    a substitution that keeps the heavy tails of small ``df`` finite.
-    """
+    """Quantile of Student's t distribution with ``df`` degrees of freedom (SciPy)."""
     if df < 1:
         raise ValueError(f"degrees of freedom must be >= 1, got {df}")
     if not 0.5 <= probability < 1:
         raise ValueError(f"probability must be in [0.5, 1), got {probability}")
-    log_norm = math.lgamma((df + 1) / 2) - math.lgamma(df / 2) - 0.5 * math.log(df * math.pi)
+    return float(_scipy_stats().t.ppf(probability, df))
 
-    def cdf(x: float) -> float:
-        # P(0 <= T <= x) with t = tan(u): the integrand is bounded on [0, atan(x)].
-        upper = math.atan(x)
-        u = np.linspace(0.0, upper, 2001)
-        t = np.tan(u)
-        density = np.exp(log_norm - (df + 1) / 2 * np.log1p(t * t / df)) / np.cos(u) ** 2
-        h = upper / 2000
-        simpson = (
-            h
-            / 3
-            * (density[0] + density[-1] + 4 * density[1:-1:2].sum() + 2 * density[2:-1:2].sum())
-        )
-        return 0.5 + float(simpson)
 
-    low, high = 0.0, 1.0
-    while cdf(high) < probability:
-        high *= 2
-    for _ in range(100):
-        mid = (low + high) / 2
-        if cdf(mid) < probability:
-            low = mid
-        else:
-            high = mid
-    return (low + high) / 2
+def wilson_interval(
+    successes: int, trials: int, confidence: float = CONFIDENCE
+) -> tuple[float, float]:
+    """The Wilson score interval of a proportion (SciPy's ``binomtest``); NaNs for no trials."""
+    if trials == 0:
+        return (math.nan, math.nan)
+    interval = _scipy_stats().binomtest(successes, trials).proportion_ci(confidence, "wilson")
+    return (float(interval.low), float(interval.high))
+
+
+def _scipy_stats():  # type: ignore[no-untyped-def]
+    try:
+        from scipy import stats
+    except ImportError:  # the report extra brings it
+        raise ImportError(
+            "frl's statistics need SciPy: pip install -c constraints.txt -e '.[report]'"
+        ) from None
+    return stats
 
 
 def mean_ci(values: Sequence[float], confidence: float = CONFIDENCE) -> Estimate:
