@@ -74,6 +74,9 @@ class RunState:
     collisions: dict[str, int] = field(default_factory=dict)
     arrivals: dict[str, int] = field(default_factory=dict)
     last_returns: dict[str, float] = field(default_factory=dict)
+    recent_returns: dict[str, list[float]] = field(default_factory=dict)
+    """Each client's last 100 training-episode returns, oldest first: the window of
+    ``rollout/ep_rew_mean``, kept so that a resumed run's curve goes on exactly."""
     wall_time_s: float = 0.0
     """Seconds of the round loop, summed over sessions when resumed."""
     local_training_s: float = 0.0

@@ -14,13 +14,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from frl import run_directory as rundir
 from frl.agents.precision import precision_report
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.coordinator import Coordinator
-from frl.federation.tensorboard import TrainingLogger, resume_purge_step
+from frl.federation.tensorboard import EPISODE_WINDOW, TrainingLogger, resume_purge_step
 from frl.federation.workers import ClientFailure
 from frl.fileio import read_json, write_json_atomic
 from frl.provenance import versions
@@ -152,6 +153,15 @@ def train_rounds(
         return Coordinator(settings.plan, pool, run_dir, logger, progress, on_round_end).run(state)
 
 
+def final_episode_return_mean(state: RunState) -> float | None:
+    """``rollout/ep_rew_mean`` at the run's end; None until every client ended an episode
+    (or for a run whose state predates the windows)."""
+    windows = [window for name, window in state.recent_returns.items() if name in state.episodes]
+    if not windows or len(windows) < len(state.episodes) or not all(windows):
+        return None
+    return float(np.mean([np.mean(window) for window in windows]))
+
+
 def training_results(settings: TrainSettings, state: RunState, run_dir: Path) -> dict[str, Any]:
     """The training and communication sections of ``results.json``."""
     plan = settings.plan
@@ -204,6 +214,12 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
             "final_step_reward": float(step_rewards[-tail:].mean()) if len(step_rewards) else None,
             "final_step_reward_definition": (
                 f"mean of train/step_reward over the last {FINAL_REWARD_FRACTION:.0%} of steps"
+            ),
+            "final_ep_rew_mean": final_episode_return_mean(state),
+            "final_ep_rew_mean_definition": (
+                f"rollout/ep_rew_mean at the end (Fig. 4's final training reward): each "
+                f"client's mean return over its last {EPISODE_WINDOW} training episodes, "
+                "averaged over the clients"
             ),
         },
         # The versions the training ran with (written at the session's start); HEAD may
@@ -283,7 +299,7 @@ def _log_hparams(run_dir: Path, settings: TrainSettings, results: dict[str, Any]
         "noise_sigma": agent.noise_sigma,
         "precision": results["agent_precision"]["used"],
     }
-    metrics = ["train/final_step_reward", "server/bytes_total"]
+    metrics = ["rollout/ep_rew_mean", "train/final_step_reward", "server/bytes_total"]
     if "evaluation" in results:
         metrics += [
             f"eval/average/{name}"

@@ -15,6 +15,9 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from train_helpers import compose_config
 
 from frl.federation import ClientFailure
+from frl.federation.tensorboard import EPISODE_WINDOW
+from frl.report.aggregate import reward_curve
+from frl.report.runs import load_run
 from frl.train import train
 
 RESULT_KEYS = {
@@ -86,6 +89,9 @@ def test_each_scheme_trains_logs_and_tests(scheme, tmp_path, capsys):
     tags = _scalar_tags(run_dir)
     assert len(tags["train/step_reward"]) == 240
     assert [e.step for e in tags["server/round"]] == [80, 160, 240]
+    fig4 = reward_curve(load_run(run_dir), EPISODE_WINDOW)  # the report's Fig. 4 curve
+    assert tags["rollout/ep_rew_mean"][-1].value == pytest.approx(fig4[-1], abs=1e-4)
+    assert saved["training"]["final_ep_rew_mean"] == pytest.approx(fig4[-1], abs=1e-4)
     for tag in ("server/bytes_up", "server/bytes_down", "server/bytes_total"):
         assert tag in tags
     for client in clients:
@@ -140,7 +146,13 @@ def test_resume_after_a_kill_finishes_the_budget(tmp_path):
     assert results["training"]["steps_per_client"] == 240
     assert results["communication"]["uploads"] == 2 * 3
     assert len(np.load(tmp_path / "run" / "step_rewards.npy")) == 240
-    assert [e.step for e in _scalar_tags(tmp_path / "run")["server/round"]] == [80, 160, 240]
+    tags = _scalar_tags(tmp_path / "run")
+    assert [e.step for e in tags["server/round"]] == [80, 160, 240]
+    # Fig. 4's windows went on over the resume: TensorBoard and results.json end on the
+    # report's curve, computed from every episode of both sessions
+    fig4 = reward_curve(load_run(tmp_path / "run"), EPISODE_WINDOW)
+    assert tags["rollout/ep_rew_mean"][-1].value == pytest.approx(fig4[-1], abs=1e-4)
+    assert results["training"]["final_ep_rew_mean"] == pytest.approx(fig4[-1], abs=1e-4)
 
 
 def test_a_worker_killed_mid_run_stops_the_run_naming_the_client(tmp_path):

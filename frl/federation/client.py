@@ -85,7 +85,7 @@ class LocalUpdate:
     total_steps: int
     """Environment steps this vehicle has taken since the run began."""
     step_rewards: np.ndarray
-    """float32 (num_steps,): the instantaneous reward of every step (paper's Fig. 4)."""
+    """float32 (num_steps,): the instantaneous reward of every step (``train/step_reward``)."""
     episodes: list[EpisodeRecord]
     """Episodes that ended in this round."""
     losses: dict[str, np.ndarray] = field(default_factory=dict)

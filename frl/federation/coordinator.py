@@ -27,7 +27,7 @@ from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool
 from frl.federation.fedavg import fedavg, state_nbytes
 from frl.federation.plan import FederationPlan
-from frl.federation.tensorboard import TrainingLogger
+from frl.federation.tensorboard import EPISODE_WINDOW, TrainingLogger
 from frl.fileio import write_json_atomic
 from frl.run_directory import RoundHook, RunState
 
@@ -100,6 +100,7 @@ class Coordinator:
         bytes_up, bytes_down = self._aggregate(updates, state) if self.plan.aggregates else (0, 0)
         state.completed_rounds = round_index + 1
         state.steps_per_client = start_step + steps
+        returns_before = {name: list(window) for name, window in state.recent_returns.items()}
         _count_episodes(state, updates)
         step_rewards = np.concatenate(
             [step_rewards, np.mean(np.stack([u.step_rewards for u in updates]), axis=0)]
@@ -116,6 +117,7 @@ class Coordinator:
                 bytes_down,
                 state.total_bytes_up + state.total_bytes_down,
                 round_time,
+                recent_returns=returns_before,
             )
             self.logger.flush()
         state.logging_s += time.perf_counter() - began
@@ -202,6 +204,10 @@ def _count_episodes(state: RunState, updates: list[LocalUpdate]) -> None:
         state.arrivals[name] = state.arrivals.get(name, 0) + sum(e.arrived for e in update.episodes)
         if update.episodes:
             state.last_returns[name] = update.episodes[-1].episode_return
+            window = state.recent_returns.get(name, []) + [
+                e.episode_return for e in update.episodes
+            ]
+            state.recent_returns[name] = window[-EPISODE_WINDOW:]
 
 
 class _RunProgress:

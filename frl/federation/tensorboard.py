@@ -5,7 +5,11 @@ curves of runs with different schemes, intervals or client counts line up.
 
 | tag | value |
 |---|---|
-| ``train/step_reward`` | instantaneous reward of each step, averaged over clients (Fig. 4) |
+| ``rollout/ep_rew_mean`` | Fig. 4's curve as the report computes it: each client's mean
+  return over its last 100 episodes, averaged over the clients, at each episode end
+  (Stable-Baselines3's tag; the paper's scale, a clean pass about 6.7) |
+| ``client{i}_{task}/ep_rew_mean`` | that client's mean return over its last 100 episodes |
+| ``train/step_reward`` | instantaneous reward of each step, averaged over clients |
 | ``client{i}_{task}/episode_return`` | return of each finished episode, at its last step |
 | ``client{i}_{task}/episode_collision`` | 1 if that episode ended in a collision, else 0 |
 | ``client{i}_{task}/episode_arrived`` | 1 if it arrived |
@@ -25,14 +29,17 @@ curves of runs with different schemes, intervals or client counts line up.
 | ``server/round_time_s`` | wall time of the round |
 | ``eval/{task}/{metric}``, ``eval/average/{metric}`` | test metrics, at the last step |
 
-plus an hparams entry (key hyperparameters against the ``eval/average/*`` metrics).
+plus an hparams entry (key hyperparameters against ``rollout/ep_rew_mean`` and the
+``eval/average/*`` metrics).
 """
 
 from __future__ import annotations
 
 import math
 import os
+from collections import deque
 from collections.abc import Mapping, Sequence
+from itertools import groupby
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +49,8 @@ from frl.episodes import METRIC_NAMES
 from frl.federation.client import LOSS_NAMES, LocalUpdate
 
 LOSS_WINDOW_STEPS = 100
+EPISODE_WINDOW = 100
+"""Episodes in ``ep_rew_mean`` (Stable-Baselines3's window; the report's default)."""
 AT_BOUND = 0.99
 """An action with |a| at or above this counts as saturated at the bound."""
 
@@ -75,9 +84,13 @@ class TrainingLogger:
         bytes_down: int,
         bytes_total: int,
         round_time_s: float,
+        recent_returns: Mapping[str, Sequence[float]] | None = None,
     ) -> None:
-        """Everything about one round; steps ``start_step+1 .. start_step+num_steps``."""
+        """Everything about one round; steps ``start_step+1 .. start_step+num_steps``.
+        ``recent_returns``: each client's last returns before this round (from the run
+        state), which ``ep_rew_mean`` continues."""
         writer = self.writer
+        self._log_return_means(updates, recent_returns or {})
         rewards = np.mean(np.stack([u.step_rewards for u in updates]), axis=0)
         for offset, value in enumerate(rewards.tolist(), start=start_step + 1):
             writer.add_scalar("train/step_reward", value, offset)
@@ -108,6 +121,29 @@ class TrainingLogger:
         writer.add_scalar("server/bytes_down", bytes_down, end_step)
         writer.add_scalar("server/bytes_total", bytes_total, end_step)
         writer.add_scalar("server/round_time_s", round_time_s, end_step)
+
+    def _log_return_means(
+        self, updates: Sequence[LocalUpdate], recent_returns: Mapping[str, Sequence[float]]
+    ) -> None:
+        """``ep_rew_mean`` per client and averaged over the clients, at each step where an
+        episode ended; the average once every client has ended one (as in the report)."""
+        windows = {
+            u.client: deque(recent_returns.get(u.client, ()), maxlen=EPISODE_WINDOW)
+            for u in updates
+        }
+        ends = sorted(
+            (episode.end_step, update.client, episode.episode_return)
+            for update in updates
+            for episode in update.episodes
+        )
+        for step, ended in groupby(ends, key=lambda end: end[0]):
+            for _, client, episode_return in ended:
+                windows[client].append(episode_return)
+                mean = float(np.mean(windows[client]))
+                self.writer.add_scalar(f"{client}/ep_rew_mean", mean, step)
+            if all(windows.values()):
+                means = [float(np.mean(window)) for window in windows.values()]
+                self.writer.add_scalar("rollout/ep_rew_mean", float(np.mean(means)), step)
 
     def _log_actions(self, prefix: str, actions: Mapping[str, np.ndarray], start_step: int) -> None:
         """Histograms per round and saturation per window: a policy stuck at +-1 shows."""
@@ -155,12 +191,18 @@ class TrainingLogger:
         """An hparams entry in this run (not in a sub-run, as ``add_hparams`` would make),
         pointing at scalar tags already logged, so the HParams tab compares sweep runs."""
         from torch.utils.tensorboard.summary import hparams as hparams_summary
+        from torch.utils.tensorboard.writer import FileWriter
 
         clean = {k: _hparam_value(v) for k, v in hparams.items()}
         experiment, start, end = hparams_summary(clean, dict.fromkeys(metric_tags, 0.0))
-        file_writer = self.writer._get_file_writer()
-        for summary in (experiment, start, end):
-            file_writer.add_summary(summary)
+        # An event file of its own in the same directory: TensorBoard reads the
+        # directory as one run.
+        file_writer = FileWriter(self.writer.get_logdir())
+        try:
+            for summary in (experiment, start, end):
+                file_writer.add_summary(summary)
+        finally:
+            file_writer.close()
 
     def flush(self) -> None:
         self.writer.flush()
