@@ -8,13 +8,15 @@
 
 Each figure is one Hydra multirun, ``python -m frl.train -m +experiment=figN``, whose
 preset (frl/conf/experiment/) fixes the sweep, a deterministic directory per job
-(``runs/repro/fig4/fedavg-seed0``) and ``resume=auto``: running the same command again
-skips finished jobs and continues a killed one from its last round. With ``--jobs N``
-each job runs as its own one-job multirun, N at a time, each on its share of the cores
-(``cores=<cores // N>``, frl.side_by_side), its output in ``RUNS_DIR/logs/``. The preset's
-:class:`ExportRun` callback copies each finished run's small result files to
-``docs/results/data/<figure>/<run>/`` as soon as it ends, and the report is built from
-those committed files. Ctrl-C stops the sweep; the next call picks up where it was.
+(``outputs/repro/runs/fig4/fedavg-seed0``) and ``resume=auto``: running the same command
+again skips finished jobs and continues a killed one from its last round. With
+``--jobs N`` each job runs as its own one-job multirun, N at a time, each on its share of
+the cores (``cores=<cores // N>``, frl.side_by_side), its output in ``RUNS_DIR/logs/``.
+The preset's :class:`ExportRun` callback copies each finished run's small result files
+to ``DATA_DIR/<figure>/<run>/`` as soon as it ends, and the report is built from those
+files. Everything goes under ``outputs/repro/`` unless told otherwise; the published
+results are rebuilt with ``--data-dir docs/results/data --report docs/results.md``.
+Ctrl-C stops the sweep; the next call picks up where it was.
 """
 
 from __future__ import annotations
@@ -49,8 +51,12 @@ DEFAULT_FIGURES = ("fig4", "fig3", "fig6")
 """Fig. 4 first (the issue's priority), then the cheap Fig. 3, then Fig. 6 (the costliest)."""
 SWEEP_OF = {"fig3": "fig3", "fig4": "fig4", "fig5": "fig4", "fig6": "fig6"}
 """Fig. 5 is tested on Fig. 4's runs."""
-DEFAULT_RUNS_DIR = Path("runs/repro")
-DEFAULT_DATA_DIR = Path("docs/results/data")
+DEFAULT_RUNS_DIR = Path("outputs/repro/runs")
+DEFAULT_DATA_DIR = Path("outputs/repro/data")
+DEFAULT_REPORT = Path("outputs/repro/results.md")
+"""Everything a reproduction writes goes under ``outputs/`` unless told otherwise: the
+published results (``--data-dir docs/results/data --report docs/results.md``) change only
+when asked."""
 
 
 class ExportRun(Callback):
@@ -170,8 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = OneLineParser(
         prog="python -m frl.reproduce",
         description="Run the paper's Section IV sweeps (resumable), export each finished run "
-        "and build docs/results.md. Arguments after -- are passed to every sweep as Hydra "
-        "overrides.",
+        "and build the report (all under outputs/repro/ unless told otherwise). Arguments "
+        "after -- are passed to every sweep as Hydra overrides.",
     )
     parser.add_argument("--figures", default=",".join(DEFAULT_FIGURES),
                         help="comma-separated, in order, from fig3, fig4, fig5 (= fig4), fig6 "
@@ -181,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="run directories (%(default)s)")  # fmt: skip
     parser.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR,
                         help="exported result files (%(default)s)")  # fmt: skip
-    parser.add_argument("--report", type=Path, default=Path("docs/results.md"),
+    parser.add_argument("--report", type=Path, default=DEFAULT_REPORT,
                         help="markdown report built from --data-dir (%(default)s)")  # fmt: skip
     parser.add_argument("--no-report", action="store_true", help="skip building the report")
     parser.add_argument("--jobs", type=int, default=1,

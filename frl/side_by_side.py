@@ -10,7 +10,7 @@ once, each with ``cores=<available cores // jobs>``::
     jobs = expand_jobs(sweeper_params("fig6"), ["seed=0,1,2"])   # [["seed=0", "interval=250"], ...]
     commands = [[python, "-m", "frl.train", "-m", "+experiment=fig6", *with_cores(job, 1)]
                 for job in jobs]
-    run_side_by_side(commands, jobs=2, log_dir=Path("runs/repro/logs"))
+    run_side_by_side(commands, jobs=2, log_dir=Path("outputs/repro/runs/logs"))
 """
 
 from __future__ import annotations

@@ -78,7 +78,7 @@ def test_reproduce_gives_each_job_its_own_multirun_and_share(capsys):
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 6
     assert "-m +experiment=fig4 seed=1 federation=separate agent=ddpg-paper cores=1" in lines[4]
-    assert all("hydra.sweep.dir=runs/repro/fig4" in line for line in lines)
+    assert all("hydra.sweep.dir=outputs/repro/runs/fig4" in line for line in lines)
 
 
 def test_reproduce_refuses_more_jobs_than_cores(capsys):

@@ -1,4 +1,5 @@
-"""``python -m frl.report RUNS_OR_DATA_DIR``: figures and docs/results.md from saved runs."""
+"""``python -m frl.report RUNS_OR_DATA_DIR``: figures and the markdown report from saved
+runs (``outputs/results.md`` unless ``--out`` names another, such as ``docs/results.md``)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ def main(argv: list[str] | None = None) -> int:
         description="Plot the paper's Figs. 3-6 and write the markdown report from runs "
         "(ROOT/fig4, fig6, fig3: run directories or exported data directories).",
     )
-    parser.add_argument("root", help="e.g. runs/repro or docs/results/data")
+    parser.add_argument("root", help="e.g. outputs/repro/runs or docs/results/data")
     parser.add_argument("--out", default=str(DEFAULT_OUT), help="markdown report (%(default)s)")
     parser.add_argument(
         "--figures-dir", default=None, help="PNG directory (default: OUT without .md)"

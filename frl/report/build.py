@@ -15,13 +15,15 @@ from frl.report.collect import Collection, collect
 
 log = logging.getLogger("frl.report")
 
-DEFAULT_OUT = Path("docs/results.md")
+DEFAULT_OUT = Path("outputs/results.md")
+"""Where ``python -m frl.report`` writes unless ``--out`` says (``docs/results.md``: the
+published report)."""
 PAPER_AGENT_DIR = "paper-agent"
 """A reproduction root's optional second root, laid out like it, with Figs. 4 and 5
 trained on the paper's Table II agent (``agent=ddpg-paper``)::
 
-    python -m frl.reproduce --figures fig4 --runs-dir runs/repro/paper-agent \\
-        --data-dir docs/results/data/paper-agent -- agent=ddpg-paper
+    python -m frl.reproduce --figures fig4 --runs-dir outputs/repro/runs/paper-agent \\
+        --data-dir docs/results/data/paper-agent --no-report -- agent=ddpg-paper
 """
 
 
