@@ -209,7 +209,7 @@ def test_save_load_round_trip_gives_identical_actions_and_next_update(tmp_path: 
     path = tmp_path / "agent.pt"
     agent.save(path, include_buffer=True)
     restored = DDPG(GRID, ACCEL, SMALL, seed=99)  # different seed: all state must come from file
-    restored.load(path)
+    restored.restore(path)
     assert (restored.num_env_steps, restored.num_updates) == (40, 21)
     obs = grid_obs(np.random.default_rng(9))
     for _ in range(3):  # exploration noise continues identically
@@ -229,7 +229,7 @@ def test_save_without_buffer_resumes_with_empty_buffer(tmp_path: Path) -> None:
     agent.save(tmp_path / "a.pt")
     restored = DDPG(GRID, ACCEL, SMALL)
     run(restored, 3)
-    restored.load(tmp_path / "a.pt")
+    restored.restore(tmp_path / "a.pt")
     assert len(restored.buffer) == 0 and restored.num_env_steps == 30
 
 
@@ -246,10 +246,10 @@ def test_truncated_corrupt_and_foreign_files_raise_checkpoint_error(tmp_path: Pa
     torch.save({"weights": torch.zeros(3), "epoch": 1}, foreign)
     for path in (truncated, garbage, foreign):
         with pytest.raises(CheckpointError):
-            agent.load(path)
+            agent.restore(path)
     assert issubclass(CheckpointError, ValueError)
     with pytest.raises(FileNotFoundError):
-        agent.load(tmp_path / "missing.pt")
+        agent.restore(tmp_path / "missing.pt")
     assert list(tmp_path.glob("*.tmp")) == []  # the atomic write left no temporary file
 
 
@@ -258,12 +258,12 @@ def test_checkpoint_of_another_config_or_version_raises(tmp_path: Path) -> None:
     DDPG(GRID, ACCEL, SMALL).save(path)
     other = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "hidden_sizes": (16, 16)}))
     with pytest.raises(CheckpointError, match="hidden_sizes"):
-        other.load(path)
+        other.restore(path)
     data = torch.load(path, weights_only=True)
     data["version"] = 999
     torch.save(data, path)
     with pytest.raises(CheckpointError, match="version"):
-        DDPG(GRID, ACCEL, SMALL).load(path)
+        DDPG(GRID, ACCEL, SMALL).restore(path)
 
 
 def test_rejects_unbounded_action_space() -> None:

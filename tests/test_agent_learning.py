@@ -1,4 +1,4 @@
-"""The one learning test: DDPG swings up gymnasium's Pendulum-v1.
+"""The one learning test: DDPG swings up gymnasium's Pendulum-v1, trained by ``DDPG.learn``.
 
 Pendulum episodes end only by the 200-step time limit (truncated, never terminated), so
 learning here also depends on truncated transitions bootstrapping. Seeds 0-5 all reached
@@ -33,20 +33,8 @@ def test_learns_pendulum_swing_up(precision: str) -> None:
     )
     env = gym.make("Pendulum-v1")
     agent = DDPG(env.observation_space, env.action_space, config, seed=0)
-    obs, _ = env.reset(seed=0)
-    agent.episode_start()
-    episode_return, returns = 0.0, []
-    for _ in range(steps):
-        action = agent.act(obs)
-        next_obs, reward, terminated, truncated, _ = env.step(action)
-        agent.observe(obs, action, reward, next_obs, terminated)
-        agent.update()
-        obs, episode_return = next_obs, episode_return + float(reward)
-        if terminated or truncated:
-            returns.append(episode_return)
-            obs, _ = env.reset()
-            agent.episode_start()
-            episode_return = 0.0
+    agent.learn(env, steps)  # the first reset seeded with the agent's seed
     env.close()
+    returns = agent.episode_returns
     assert len(returns) == steps // 200
     assert np.mean(returns[-10:]) > -400, returns[-10:]

@@ -106,7 +106,7 @@ def test_options_survive_a_checkpoint_and_old_checkpoints_still_load(tmp_path: P
         agent.observe(o, agent.act(o), 0.1, o, terminated=False)
     agent.save(tmp_path / "a.pt", include_buffer=True)
     restored = DDPG(GRID, ACCEL, config, seed=99)
-    restored.load(tmp_path / "a.pt")
+    restored.restore(tmp_path / "a.pt")
     assert len(restored._n_step) == len(agent._n_step) == 3
     restored.episode_start()
     agent.episode_start()
@@ -122,11 +122,11 @@ def test_options_survive_a_checkpoint_and_old_checkpoints_still_load(tmp_path: P
         del data["config"][key]
     del data["n_step"], data["warmup_action"]
     torch.save(data, tmp_path / "old.pt")
-    plain.load(tmp_path / "old.pt")
+    plain.restore(tmp_path / "old.pt")
     rebuilt = DDPG.from_checkpoint(tmp_path / "old.pt", GRID, ACCEL)
     assert (rebuilt.config.n_step, rebuilt.config.warmup_hold_steps) == (1, 1.0)
     with pytest.raises(CheckpointError, match="n_step"):  # not today's default agent
-        DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "hidden_sizes": (16,)})).load(
+        DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "hidden_sizes": (16,)})).restore(
             tmp_path / "old.pt"
         )
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import os
+import types
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -58,6 +59,29 @@ def _make_adam(params: list[nn.Parameter], lr: float, device: torch.device) -> t
         return torch.optim.Adam(params, lr=lr, foreach=device.type != "cpu" or None)
 
 
+LearnCallback = Callable[["DDPG", int, dict], "bool | None"]
+"""``callback(agent, step, info)`` after every step of :meth:`DDPG.learn`; ``False`` stops it."""
+
+
+class _class_only:
+    """A classmethod that refuses to be called on an instance: ``agent.load(path)`` would
+    return a new agent and leave ``agent`` as it was, silently."""
+
+    def __init__(self, method: Callable[..., Any]) -> None:
+        self.method = method
+        self.__doc__ = method.__doc__
+
+    def __get__(self, instance: object, owner: type) -> Callable[..., Any]:
+        if instance is not None:
+            name = self.method.__name__
+            raise TypeError(
+                f"{owner.__name__}.{name} is a class method that returns a new agent: "
+                f"agent = {owner.__name__}.{name}(path); to load a file into this agent, "
+                "agent.restore(path)"
+            )
+        return types.MethodType(self.method, owner)
+
+
 class DDPG:
     """Deep Deterministic Policy Gradient agent for a Box observation and a Box action space.
 
@@ -74,8 +98,11 @@ class DDPG:
             one initial global model). None: the init stream of ``seed``.
         device: where networks and training batches live; nothing requires a GPU.
 
-    Call :meth:`episode_start` at each reset, :meth:`act` to choose an action,
-    :meth:`observe` with the transition and :meth:`update` once per environment step.
+    :meth:`learn` trains on a gymnasium environment, :meth:`predict` acts on one
+    observation or a batch, :meth:`save` and ``DDPG.load`` write and read a file, as in
+    Stable-Baselines3. Loops of their own (the federated clients') call
+    :meth:`episode_start` at each reset, :meth:`act` to choose an action, :meth:`observe`
+    with the transition and :meth:`update` once per environment step.
     """
 
     def __init__(
@@ -174,6 +201,12 @@ class DDPG:
         """Transitions passed to :meth:`observe`."""
         self.num_updates = 0
         """Gradient steps taken."""
+        self.episode_returns: list[float] = []
+        """Returns of the episodes :meth:`learn` finished, in order."""
+        self.episode_lengths: list[int] = []
+        """Their lengths in environment steps."""
+        self.learn_calls = 0
+        """Calls of :meth:`learn` so far (the first seeds the environment's reset)."""
 
     def _build(self, kind: type[Actor] | type[Critic], init_gen: torch.Generator) -> Any:
         """An actor or critic initialised from ``init_gen`` alone, on the agent's device.
@@ -257,6 +290,56 @@ class DDPG:
         if cfg.action_repeat > 1:
             self._held_action, self._hold_left = action, cfg.action_repeat - 1
         return self._denormalise(action)
+
+    def predict(
+        self,
+        observation: Any,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        """``(action, None)`` for one observation or a batch, as Stable-Baselines3's
+        ``predict``: float32 actions within the bounds, shaped like the action space (one
+        observation) or with a leading batch axis. ``deterministic=False`` adds a draw of
+        the exploration noise to each. ``state`` and ``episode_start`` are accepted for
+        Stable-Baselines3's signature; DDPG has no recurrent state.
+
+        Raises:
+            ValueError: an observation whose shape is neither the space's nor a batch of it.
+        """
+        obs = np.asarray(observation, dtype=np.float32)
+        if obs.shape == self.obs_shape:
+            batch = obs.reshape(1, self.obs_dim)
+        elif obs.ndim == len(self.obs_shape) + 1 and obs.shape[1:] == self.obs_shape:
+            batch = obs.reshape(len(obs), self.obs_dim)
+        else:
+            raise ValueError(
+                f"expected an observation of shape {self.obs_shape} or a batch of them "
+                f"(N, {', '.join(map(str, self.obs_shape))}), got {obs.shape}"
+            )
+        flat = torch.from_numpy(batch).to(self.device)
+        with torch.no_grad(), self._autocast():
+            inputs = SparseRows.from_dense(flat) if self.sparse else flat
+            actions = self.actor(inputs).double().cpu().numpy()
+        if not deterministic:
+            actions = np.clip(actions + np.stack([self.noise() for _ in actions]), -1.0, 1.0)
+        env_actions = np.stack([self._denormalise(action) for action in actions])
+        return (env_actions if obs.shape != self.obs_shape else env_actions[0]), None
+
+    def learn(
+        self,
+        env: Any,
+        total_timesteps: int,
+        callback: LearnCallback | None = None,
+        progress_bar: bool = False,
+        tensorboard_log: str | os.PathLike[str] | None = None,
+        seed: int | None = None,
+    ) -> DDPG:
+        """Train on one gymnasium environment for ``total_timesteps`` steps; return the
+        agent (Stable-Baselines3's ``model.learn``). See :func:`frl.agents.learn.learn`."""
+        from frl.agents.learn import learn
+
+        return learn(self, env, total_timesteps, callback, progress_bar, tensorboard_log, seed)
 
     def _explore_stretch(self, action: np.ndarray) -> np.ndarray:
         """``action``, or a uniform one held for a geometric stretch of decisions (mean
@@ -593,8 +676,9 @@ class DDPG:
             path,
         )
 
-    def load(self, path: str | os.PathLike[str]) -> None:
-        """Restore a :meth:`save` file into this agent (same config and spaces).
+    def restore(self, path: str | os.PathLike[str]) -> None:
+        """Restore a :meth:`save` file into this agent (same config and spaces): exact
+        resume. :meth:`load` builds a new agent from a file instead.
 
         Without a saved buffer the agent resumes with an empty buffer.
 
@@ -699,20 +783,36 @@ class DDPG:
     def from_checkpoint(
         cls,
         path: str | os.PathLike[str],
-        observation_space: spaces.Box,
-        action_space: spaces.Box,
+        observation_space: spaces.Box | None = None,
+        action_space: spaces.Box | None = None,
         device: str | torch.device = "cpu",
     ) -> DDPG:
-        """A new agent built with the checkpoint's config and seed, then :meth:`load`-ed."""
+        """A new agent built with the checkpoint's config and seed, then :meth:`restore`-d.
+        Spaces left out are rebuilt from the file (the observation bounds as unbounded)."""
         data = read_checkpoint(path)
         try:
             config = DDPGConfig.from_dict(data["config"])
             seed = int(data["seed"])
         except (KeyError, TypeError, ValueError) as error:
             raise CheckpointError(f"{path}: malformed checkpoint config ({error!r})") from error
+        if observation_space is None or action_space is None:
+            saved_observation, saved_action = _spaces_of(data, path)
+            observation_space = observation_space or saved_observation
+            action_space = action_space or saved_action
         agent = cls(observation_space, action_space, config, seed=seed, device=device)
-        agent.load(path)
+        agent.restore(path)
         return agent
+
+    @_class_only
+    def load(cls, path: str | os.PathLike[str], device: str | torch.device = "cpu") -> DDPG:
+        """A new agent from a :meth:`save` file, a run's ``models/*.pt`` included: its
+        config, seed and spaces come from the file (``DDPG.load(path)``, as in
+        Stable-Baselines3). Checkpoints load with ``weights_only=True``.
+
+        Raises:
+            CheckpointError: unreadable, foreign or malformed file.
+        """
+        return cls.from_checkpoint(path, device=device)
 
 
 def _check_state_dict(saved: Any, current: dict[str, Tensor], prefix: str) -> None:
@@ -721,3 +821,16 @@ def _check_state_dict(saved: Any, current: dict[str, Tensor], prefix: str) -> No
     for key, tensor in current.items():
         if not isinstance(saved[key], Tensor) or saved[key].shape != tensor.shape:
             raise CheckpointError(f"checkpoint {prefix}.{key} has the wrong shape")
+
+
+def _spaces_of(data: dict[str, Any], path: str | os.PathLike[str]) -> tuple[spaces.Box, spaces.Box]:
+    """The observation and action spaces a checkpoint records."""
+    try:
+        record = data["spaces"]
+        observation = spaces.Box(-np.inf, np.inf, tuple(record["obs_shape"]), dtype=np.float32)
+        shape = tuple(record["action_shape"])
+        low = record["action_low"].numpy().astype(np.float32).reshape(shape)
+        high = record["action_high"].numpy().astype(np.float32).reshape(shape)
+        return observation, spaces.Box(low, high, shape, dtype=np.float32)
+    except (KeyError, TypeError, AttributeError, ValueError) as error:
+        raise CheckpointError(f"{path}: malformed checkpoint spaces ({error!r})") from error

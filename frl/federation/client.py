@@ -310,7 +310,7 @@ class VehicleClient:
         """Restore :meth:`save`. The episode that was running at save time is not restored
         (SUMO's state is not saved): the next step starts a new simulation."""
         directory = Path(directory)
-        self.agent.load(directory / f"{self.name}.pt")
+        self.agent.restore(directory / f"{self.name}.pt")
         state = json.loads((directory / f"{self.name}.json").read_text())
         self._restarts = int(state["restarts"])
         self._episodes_total = int(state["episodes_total"])

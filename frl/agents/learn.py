@@ -1,0 +1,129 @@
+"""``DDPG.learn``: one agent trained on one gymnasium environment, the loop of
+Stable-Baselines3's ``model.learn``, with its TensorBoard tags where asked.
+
+The loop is act, step, observe (gymnasium's ``terminated``: a time-limit cut-off still
+bootstraps), update, and at an episode's end reset and :meth:`DDPG.episode_start`. The
+federated runs of ``frl.train`` drive the same calls from frl.federation.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from frl.agents.ddpg import DDPG, LearnCallback
+
+EPISODE_WINDOW = 100
+"""Episodes in ``rollout/ep_rew_mean`` and ``ep_len_mean`` (Stable-Baselines3's window)."""
+LOSS_WINDOW = 100
+"""Environment steps over which ``train/*`` losses are averaged before each point."""
+
+
+def learn(
+    agent: DDPG,
+    env: Any,
+    total_timesteps: int,
+    callback: LearnCallback | None = None,
+    progress_bar: bool = False,
+    tensorboard_log: str | os.PathLike[str] | None = None,
+    seed: int | None = None,
+) -> DDPG:
+    """Train ``agent`` on ``env`` for ``total_timesteps`` environment steps; return it.
+
+    Args:
+        env: a gymnasium environment whose spaces have the agent's shapes (a single
+            environment: a vector of them would need one agent step per environment).
+        total_timesteps: steps in this call; a later call goes on from the agent's state
+            (buffer, counters, noise) with a fresh episode.
+        callback: ``callback(agent, step, info)`` after each step (``step`` counts from 1
+            in this call); returning ``False`` stops training there.
+        progress_bar: a tqdm bar over the steps.
+        tensorboard_log: a directory for TensorBoard events: ``rollout/ep_rew_mean`` and
+            ``rollout/ep_len_mean`` over the last 100 episodes at each episode's end,
+            ``rollout/episode_return``, and the update losses (``train/critic_loss``,
+            ``train/actor_loss``, ...) averaged over windows of 100 steps; the x axis is
+            the agent's total environment steps.
+        seed: the first reset's seed; None: the agent's seed on its first ``learn``,
+            unseeded resets after (the environment's own random stream goes on).
+
+    The returns of finished episodes are appended to ``agent.episode_returns``.
+
+    Raises:
+        ValueError: a non-positive budget, or spaces that do not match the agent's.
+    """
+    if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, (int, np.integer)):
+        raise ValueError(f"total_timesteps must be a positive integer, got {total_timesteps!r}")
+    if total_timesteps <= 0:
+        raise ValueError(f"total_timesteps must be a positive integer, got {total_timesteps}")
+    _check_spaces(agent, env)
+    if seed is None and agent.learn_calls == 0:
+        seed = agent.seed
+    writer = _summary_writer(tensorboard_log)
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=int(total_timesteps), unit="step", disable=not progress_bar)
+    returns: deque[float] = deque(agent.episode_returns[-EPISODE_WINDOW:], EPISODE_WINDOW)
+    lengths: deque[int] = deque(agent.episode_lengths[-EPISODE_WINDOW:], EPISODE_WINDOW)
+    losses: dict[str, list[float]] = {}
+    try:
+        obs, _ = env.reset(seed=seed)
+        agent.learn_calls += 1
+        agent.episode_start()
+        episode_return, episode_steps = 0.0, 0
+        for step in range(1, int(total_timesteps) + 1):
+            action = agent.act(obs)
+            next_obs, reward, terminated, truncated, info = env.step(action)
+            agent.observe(obs, action, reward, next_obs, terminated)
+            for name, value in agent.update().items():
+                losses.setdefault(name, []).append(value)
+            obs = next_obs
+            episode_return += float(reward)
+            episode_steps += 1
+            if writer is not None and agent.num_env_steps % LOSS_WINDOW == 0:
+                for name, values in losses.items():
+                    writer.add_scalar(f"train/{name}", float(np.mean(values)), agent.num_env_steps)
+                losses.clear()
+            if terminated or truncated:
+                returns.append(episode_return)
+                lengths.append(episode_steps)
+                agent.episode_returns.append(episode_return)
+                agent.episode_lengths.append(episode_steps)
+                if writer is not None:
+                    at = agent.num_env_steps
+                    writer.add_scalar("rollout/ep_rew_mean", float(np.mean(returns)), at)
+                    writer.add_scalar("rollout/ep_len_mean", float(np.mean(lengths)), at)
+                    writer.add_scalar("rollout/episode_return", episode_return, at)
+                obs, _ = env.reset()
+                agent.episode_start()
+                episode_return, episode_steps = 0.0, 0
+            bar.update(1)
+            if callback is not None and callback(agent, step, info) is False:
+                break
+    finally:
+        bar.close()
+        if writer is not None:
+            writer.close()
+    return agent
+
+
+def _check_spaces(agent: DDPG, env: Any) -> None:
+    observation_shape = tuple(getattr(env.observation_space, "shape", ()) or ())
+    action_shape = tuple(getattr(env.action_space, "shape", ()) or ())
+    if observation_shape != agent.obs_shape or action_shape != agent.action_shape:
+        raise ValueError(
+            f"the environment's spaces (observation {observation_shape}, action "
+            f"{action_shape}) do not match the agent's (observation {agent.obs_shape}, "
+            f"action {agent.action_shape})"
+        )
+
+
+def _summary_writer(log_dir: str | os.PathLike[str] | None) -> Any:
+    if log_dir is None:
+        return None
+    from torch.utils.tensorboard import SummaryWriter
+
+    return SummaryWriter(os.fspath(log_dir))
