@@ -174,6 +174,99 @@ def evaluate_policies(
     return results
 
 
+def evaluate_policy(
+    policy: Any,
+    traffic: str = "paper",
+    seed: int = 0,
+    episodes: int = 100,
+    tasks: Sequence[str] = TASKS,
+    yardsticks: Sequence[str] = ("full_throttle", "gap_acceptance", "oracle"),
+    on_reset: Callable[[], None] | None = None,
+    progress: bool = False,
+    verbose: bool = True,
+) -> dict[str, Any]:
+    """Test any driver on frl's test protocol, beside the yardsticks on the same seeds.
+
+    The episodes are those ``python -m frl.evaluate`` runs for a run with ``seed`` on the
+    ``traffic`` preset (odd SUMO seeds, ``episodes`` per task, the paper's reward), so a
+    Stable-Baselines3 or CleanRL agent is scored exactly as frl's models and yardsticks.
+
+    Args:
+        policy: a callable ``observation -> action``, or an object with
+            ``predict(observation, deterministic=True) -> (action, state)`` (a
+            Stable-Baselines3 model, :class:`frl.agents.DDPG`). It drives in this process,
+            one task after the other.
+        on_reset: called after every reset (a recurrent policy's episode start).
+        yardsticks: tested on the same seeds (cached, in worker processes); ``()`` for none.
+        verbose: print the table (as ``frl.evaluate`` does).
+
+    Returns:
+        ``{"per_task", "average", "yardsticks": {name: {"per_task", "average"}},
+        "episodes_per_task", "traffic", "seed"}``, the keys of a run's ``evaluation``.
+
+    Raises:
+        ValueError: an unknown traffic, task or yardstick, a seed or episode count that
+            is not a non-negative (positive) integer, or a policy that cannot act;
+            all before any episode runs.
+    """
+    act = _policy_callable(policy)
+    if traffic not in TRAFFIC_PRESETS:
+        raise ValueError(
+            f"unknown traffic preset {traffic!r}; choose one of {', '.join(TRAFFIC_PRESETS)}"
+        )
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes <= 0:
+        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+    tasks = list(tasks)
+    unknown = [task for task in tasks if task not in TASKS] or ([] if tasks else ["(none)"])
+    if unknown:
+        raise ValueError(f"unknown task {unknown[0]!r}; choose from {', '.join(TASKS)}")
+    unknown = [name for name in yardsticks if name not in YARDSTICKS]
+    if unknown:
+        raise ValueError(f"unknown yardstick {unknown[0]!r}; choose from {', '.join(YARDSTICKS)}")
+    settings = default_settings(traffic, seed)
+    per_task = {}
+    bar = _progress_bar(progress, episodes * len(tasks), "policy")
+    try:
+        for task in tasks:
+            env = IntersectionEnv(settings.eval_env(task), settings.reward)
+            try:
+                records = []
+                for episode_seed in evaluation_seeds(seed, task, episodes):
+                    records.append(run_episode(env, act, task, episode_seed, on_reset))
+                    bar.update(1)
+            finally:
+                env.close()
+            per_task[task] = summarize(records)
+    finally:
+        bar.close()
+    tested = evaluate_policies(settings, tasks, episodes, list(yardsticks), progress=progress)
+    evaluation = {
+        **_table(per_task),
+        "yardsticks": {name: _table(tested[name]) for name in yardsticks},
+        "episodes_per_task": episodes,
+        "traffic": traffic,
+        "seed": seed,
+    }
+    if verbose:
+        print(format_table({"scheme": "policy", "seed": seed, "evaluation": evaluation}))
+    return evaluation
+
+
+def _policy_callable(policy: Any) -> Callable[[Any], Any]:
+    """``observation -> action`` from a callable or a ``predict``-er."""
+    predict = getattr(policy, "predict", None)
+    if callable(predict):
+        return lambda observation: predict(observation, deterministic=True)[0]
+    if callable(policy):
+        return policy
+    raise ValueError(
+        "policy must be a callable observation -> action or have "
+        f"predict(observation, deterministic=True); got {type(policy).__name__}"
+    )
+
+
 def evaluate_run(
     run_dir: str | os.PathLike[str],
     episodes: int | None = None,
