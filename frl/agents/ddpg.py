@@ -18,6 +18,7 @@ from torch import Tensor, nn
 from frl.agents.checkpoint import CheckpointError, read_checkpoint, write_checkpoint
 from frl.agents.config import DDPGConfig
 from frl.agents.functional import hard_update, soft_update, td_target
+from frl.agents.learn import LearnCallback, learn
 from frl.agents.n_step import NStepAccumulator
 from frl.agents.networks import Actor, Critic, init_mlp_
 from frl.agents.noise import generator_state, make_noise, set_generator_state
@@ -57,10 +58,6 @@ def _make_adam(params: list[nn.Parameter], lr: float, device: torch.device) -> t
         return torch.optim.Adam(params, lr=lr, fused=True)
     except (RuntimeError, TypeError, ValueError):
         return torch.optim.Adam(params, lr=lr, foreach=device.type != "cpu" or None)
-
-
-LearnCallback = Callable[["DDPG", int, dict], "bool | None"]
-"""``callback(agent, step, info)`` after every step of :meth:`DDPG.learn`; ``False`` stops it."""
 
 
 class _class_only:
@@ -337,8 +334,6 @@ class DDPG:
     ) -> DDPG:
         """Train on one gymnasium environment for ``total_timesteps`` steps; return the
         agent (Stable-Baselines3's ``model.learn``). See :func:`frl.agents.learn.learn`."""
-        from frl.agents.learn import learn
-
         return learn(self, env, total_timesteps, callback, progress_bar, tensorboard_log, seed)
 
     def _explore_stretch(self, action: np.ndarray) -> np.ndarray:

@@ -10,12 +10,10 @@ from __future__ import annotations
 
 import os
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from frl.agents.ddpg import DDPG, LearnCallback
 
 EPISODE_WINDOW = 100
 """Episodes in ``rollout/ep_rew_mean`` and ``ep_len_mean`` (Stable-Baselines3's window)."""
@@ -23,15 +21,39 @@ LOSS_WINDOW = 100
 """Environment steps over which ``train/*`` losses are averaged before each point."""
 
 
+class Learner(Protocol):
+    """What :func:`learn` needs of an agent (:class:`frl.agents.DDPG` has it)."""
+
+    seed: int
+    obs_shape: tuple[int, ...]
+    action_shape: tuple[int, ...]
+    num_env_steps: int
+    learn_calls: int
+    episode_returns: list[float]
+    episode_lengths: list[int]
+
+    def act(self, obs: Any, explore: bool = True) -> np.ndarray: ...
+    def observe(
+        self, obs: Any, action: Any, reward: float, next_obs: Any, terminated: bool
+    ) -> None: ...
+    def update(self) -> dict[str, float]: ...
+    def episode_start(self) -> None: ...
+
+
+AgentT = TypeVar("AgentT", bound=Learner)
+LearnCallback = Callable[[Any, int, dict], "bool | None"]
+"""``callback(agent, step, info)`` after every step of :func:`learn`; ``False`` stops it."""
+
+
 def learn(
-    agent: DDPG,
+    agent: AgentT,
     env: Any,
     total_timesteps: int,
     callback: LearnCallback | None = None,
     progress_bar: bool = False,
     tensorboard_log: str | os.PathLike[str] | None = None,
     seed: int | None = None,
-) -> DDPG:
+) -> AgentT:
     """Train ``agent`` on ``env`` for ``total_timesteps`` environment steps; return it.
 
     Args:
@@ -110,7 +132,7 @@ def learn(
     return agent
 
 
-def _check_spaces(agent: DDPG, env: Any) -> None:
+def _check_spaces(agent: Learner, env: Any) -> None:
     observation_shape = tuple(getattr(env.observation_space, "shape", ()) or ())
     action_shape = tuple(getattr(env.action_space, "shape", ()) or ())
     if observation_shape != agent.obs_shape or action_shape != agent.action_shape:
