@@ -36,6 +36,7 @@ from frl.episodes import (
     EpisodeRecord,
     average_over_tasks,
     run_episode,
+    run_episodes,
     summarize,
 )
 from frl.federation.plan import evaluation_seeds
@@ -210,12 +211,7 @@ def evaluate_policy(
             all before any episode runs.
     """
     act = _policy_callable(policy)
-    if traffic not in TRAFFIC_PRESETS:
-        raise ValueError(
-            f"unknown traffic preset {traffic!r}; choose one of {', '.join(TRAFFIC_PRESETS)}"
-        )
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    settings = default_settings(traffic, seed)  # refuses an unknown traffic, a bad seed
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes <= 0:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     tasks = list(tasks)
@@ -225,20 +221,17 @@ def evaluate_policy(
     unknown = [name for name in yardsticks if name not in YARDSTICKS]
     if unknown:
         raise ValueError(f"unknown yardstick {unknown[0]!r}; choose from {', '.join(YARDSTICKS)}")
-    settings = default_settings(traffic, seed)
     per_task = {}
     bar = _progress_bar(progress, episodes * len(tasks), "policy")
     try:
         for task in tasks:
             env = IntersectionEnv(settings.eval_env(task), settings.reward)
             try:
-                records = []
-                for episode_seed in evaluation_seeds(seed, task, episodes):
-                    records.append(run_episode(env, act, task, episode_seed, on_reset))
-                    bar.update(1)
+                seeds = evaluation_seeds(seed, task, episodes)
+                per_task[task] = summarize(run_episodes(env, act, task, seeds, on_reset))
             finally:
                 env.close()
-            per_task[task] = summarize(records)
+            bar.update(episodes)
     finally:
         bar.close()
     tested = evaluate_policies(settings, tasks, episodes, list(yardsticks), progress=progress)

@@ -14,14 +14,18 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from frl import run_directory as rundir
 from frl.agents.precision import precision_report
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.coordinator import Coordinator
-from frl.federation.tensorboard import EPISODE_WINDOW, TrainingLogger, resume_purge_step
+from frl.federation.tensorboard import (
+    EPISODE_WINDOW,
+    TrainingLogger,
+    mean_over_clients,
+    resume_purge_step,
+)
 from frl.federation.workers import ClientFailure
 from frl.fileio import read_json, write_json_atomic
 from frl.provenance import versions
@@ -156,10 +160,10 @@ def train_rounds(
 def final_episode_return_mean(state: RunState) -> float | None:
     """``rollout/ep_rew_mean`` at the run's end; None until every client ended an episode
     (or for a run whose state predates the windows)."""
-    windows = [window for name, window in state.recent_returns.items() if name in state.episodes]
-    if not windows or len(windows) < len(state.episodes) or not all(windows):
+    windows = [state.recent_returns.get(name) for name in state.episodes]
+    if not windows or not all(windows):
         return None
-    return float(np.mean([np.mean(window) for window in windows]))
+    return mean_over_clients(windows)
 
 
 def training_results(settings: TrainSettings, state: RunState, run_dir: Path) -> dict[str, Any]:

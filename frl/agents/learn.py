@@ -9,7 +9,6 @@ federated runs of ``frl.train`` drive the same calls from frl.federation.
 from __future__ import annotations
 
 import os
-from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol, TypeVar
 
@@ -88,8 +87,6 @@ def learn(
     from tqdm.auto import tqdm
 
     bar = tqdm(total=int(total_timesteps), unit="step", disable=not progress_bar)
-    returns: deque[float] = deque(agent.episode_returns[-EPISODE_WINDOW:], EPISODE_WINDOW)
-    lengths: deque[int] = deque(agent.episode_lengths[-EPISODE_WINDOW:], EPISODE_WINDOW)
     losses: dict[str, list[float]] = {}
     try:
         obs, _ = env.reset(seed=seed)
@@ -110,12 +107,12 @@ def learn(
                     writer.add_scalar(f"train/{name}", float(np.mean(values)), agent.num_env_steps)
                 losses.clear()
             if terminated or truncated:
-                returns.append(episode_return)
-                lengths.append(episode_steps)
                 agent.episode_returns.append(episode_return)
                 agent.episode_lengths.append(episode_steps)
                 if writer is not None:
                     at = agent.num_env_steps
+                    returns = agent.episode_returns[-EPISODE_WINDOW:]
+                    lengths = agent.episode_lengths[-EPISODE_WINDOW:]
                     writer.add_scalar("rollout/ep_rew_mean", float(np.mean(returns)), at)
                     writer.add_scalar("rollout/ep_len_mean", float(np.mean(lengths)), at)
                     writer.add_scalar("rollout/episode_return", episode_return, at)

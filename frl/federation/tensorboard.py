@@ -38,19 +38,18 @@ from __future__ import annotations
 import math
 import os
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from itertools import groupby
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from frl.agents.learn import EPISODE_WINDOW
 from frl.episodes import METRIC_NAMES
 from frl.federation.client import LOSS_NAMES, LocalUpdate
 
 LOSS_WINDOW_STEPS = 100
-EPISODE_WINDOW = 100
-"""Episodes in ``ep_rew_mean`` (Stable-Baselines3's window; the report's default)."""
 AT_BOUND = 0.99
 """An action with |a| at or above this counts as saturated at the bound."""
 
@@ -142,8 +141,8 @@ class TrainingLogger:
                 mean = float(np.mean(windows[client]))
                 self.writer.add_scalar(f"{client}/ep_rew_mean", mean, step)
             if all(windows.values()):
-                means = [float(np.mean(window)) for window in windows.values()]
-                self.writer.add_scalar("rollout/ep_rew_mean", float(np.mean(means)), step)
+                average = mean_over_clients(windows.values())
+                self.writer.add_scalar("rollout/ep_rew_mean", average, step)
 
     def _log_actions(self, prefix: str, actions: Mapping[str, np.ndarray], start_step: int) -> None:
         """Histograms per round and saturation per window: a policy stuck at +-1 shows."""
@@ -217,6 +216,12 @@ def _hparam_value(value: Any) -> bool | int | float | str:
     if isinstance(value, (list, tuple)):
         return "x".join(str(v) for v in value) if value else "-"
     return str(value)
+
+
+def mean_over_clients(windows: Iterable[Sequence[float]]) -> float:
+    """``rollout/ep_rew_mean`` from each client's window of returns: the mean over the
+    clients of each one's mean (so a client ending more episodes weighs no more)."""
+    return float(np.mean([np.mean(window) for window in windows]))
 
 
 def resume_purge_step(log_dir: str | os.PathLike[str], committed_steps: int) -> int | None:
