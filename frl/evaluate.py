@@ -51,23 +51,28 @@ SEEDS_DEFINITION = (
 
 
 class PolicyEvaluator:
-    """Hosts one test environment, and optionally one saved model (one per worker process)."""
+    """Hosts one test environment and the task's saved model(s) (one per worker process):
+    one, or Sep-DDPG's one per vehicle of a fleet, each driving every test seed."""
 
     def __init__(
         self,
         env: EnvConfig,
         reward: RewardConfig,
-        model_path: str | None = None,
+        model_path: str | Sequence[str] | None = None,
         device: str = "cpu",
     ) -> None:
         self.env = IntersectionEnv(env, reward)
-        self.agent = None
-        if model_path is not None:
+        paths = [model_path] if isinstance(model_path, str) else list(model_path or [])
+        self.agents = []
+        if paths:
             from frl.agents import DDPG
 
-            self.agent = DDPG.from_checkpoint(
-                model_path, self.env.observation_space, self.env.action_space, device=device
-            )
+            self.agents = [
+                DDPG.from_checkpoint(
+                    path, self.env.observation_space, self.env.action_space, device=device
+                )
+                for path in paths
+            ]
 
     def run(
         self,
@@ -77,19 +82,22 @@ class PolicyEvaluator:
         progress: Callable[..., None] | None = None,
     ) -> list[EpisodeRecord]:
         """One episode per seed with ``policy``: the model (exploration off) or a yardstick."""
-        on_reset = None
+        drivers: list[tuple[Callable[[Any], Any], Callable[[], None] | None]] = []
         if policy == MODEL:
-            if self.agent is None:
+            if not self.agents:
                 raise ValueError("this evaluator holds no model")
-            act = functools.partial(self.agent.act, explore=False)
-            on_reset = self.agent.episode_start
+            drivers = [
+                (functools.partial(agent.act, explore=False), agent.episode_start)
+                for agent in self.agents
+            ]
         else:
-            act = make_yardstick(policy, self.env)
+            drivers = [(make_yardstick(policy, self.env), None)]
         records = []
-        for number, seed in enumerate(seeds, start=1):
-            records.append(run_episode(self.env, act, task, seed, on_reset))
-            if progress is not None:
-                progress(episodes=number)
+        for act, on_reset in drivers:
+            for seed in seeds:
+                records.append(run_episode(self.env, act, task, seed, on_reset))
+                if progress is not None:
+                    progress(episodes=len(records) / len(drivers))
         return records
 
     def close(self) -> None:
@@ -101,14 +109,16 @@ def evaluate_policies(
     tasks: Sequence[str],
     episodes: int,
     policies: Sequence[str],
-    model_files: dict[str, str] | None = None,
+    model_files: dict[str, str | list[str]] | None = None,
     progress: bool = False,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Test each policy on each task's test seeds; ``{policy: {task: summary}}``.
 
     ``settings`` is a :class:`frl.train_config.TrainSettings`. ``model_files`` maps each
-    task to its saved model (needed when ``policies`` holds :data:`MODEL`). Yardsticks
-    come from the cache when they ran on the same environment, reward and seeds before.
+    task to its saved model, or models (needed when ``policies`` holds :data:`MODEL`);
+    several models of a task each drive every seed and their episodes are pooled.
+    Yardsticks come from the cache when they ran on the same environment, reward and
+    seeds before.
     """
     seeds = {task: evaluation_seeds(settings.seed, task, episodes) for task in tasks}
     results: dict[str, dict[str, dict[str, Any]]] = {name: {} for name in policies}
@@ -135,7 +145,7 @@ def evaluate_policies(
                 PolicyEvaluator,
                 settings.eval_env(task),
                 settings.reward,
-                os.fspath(model_files[task]) if model_files and MODEL in to_run else None,
+                _paths(model_files[task]) if model_files and MODEL in to_run else None,
                 settings.device,
             ),
         )
@@ -173,6 +183,11 @@ def evaluate_policies(
                 if name != MODEL:
                     yardstick_cache.store(keys[name, task], summary)
     return results
+
+
+def _paths(files: str | os.PathLike[str] | Sequence[Any]) -> list[str]:
+    return [os.fspath(files)] if isinstance(files, (str, os.PathLike)) else [
+        os.fspath(f) for f in files]  # fmt: skip
 
 
 def evaluate_policy(
@@ -275,11 +290,16 @@ def evaluate_run(
     if episodes <= 0:
         raise ValueError(f"episodes must be positive, got {episodes}")
     files = rundir.model_files(run_dir)
-    for path in set(files.values()):  # a missing or corrupt model fails here, not in a worker
-        read_checkpoint(path)
-    model_files = {task: path.name for task, path in files.items()}
+    for path in {p for paths in files.values() for p in paths}:
+        read_checkpoint(path)  # a missing or corrupt model fails here, not in a worker
+    model_files: dict[str, str | list[str]] = {
+        task: paths[0].name if len(paths) == 1 else [p.name for p in paths]
+        for task, paths in files.items()
+    }
     tasks = list(model_files)
-    paths = {task: os.fspath(path) for task, path in files.items()}
+    paths: dict[str, str | list[str]] = {
+        task: [os.fspath(p) for p in task_paths] for task, task_paths in files.items()
+    }
     tested = evaluate_policies(
         settings, tasks, episodes, [MODEL, *settings.yardsticks], paths, progress
     )

@@ -9,7 +9,7 @@ Every module that reads or writes a run asks this one (docs/training.md shows th
 | ``state.json`` | the roadside unit | :class:`RunState`: commits each finished round |
 | ``step_rewards.npy`` | the roadside unit | ``train/step_reward``, one value per step |
 | ``checkpoints/round_NNNN/`` | the clients | the last committed round's full client states |
-| ``models/`` | the clients | final models and ``index.json`` (task -> file) |
+| ``models/`` | the clients | final models and ``index.json`` (task -> file, or files) |
 | ``results.json`` | the entry point, evaluation | training, communication and test tables |
 | ``tb/`` | the roadside unit, evaluation | TensorBoard events |
 | ``flower/`` | the Flower backend | SuperLink, SuperNode and ``flwr run`` logs |
@@ -94,6 +94,11 @@ class RunState:
     round_times_s: list[float] = field(default_factory=list)
     dropped_clients: dict[str, str] = field(default_factory=dict)
     """Clients dropped after a failure (Flower backend, ``accept_failures``): name -> why."""
+    vehicle_steps: dict[str, int] = field(default_factory=dict)
+    """Environment steps each vehicle has taken; below ``steps_per_client`` for a vehicle
+    left out of some rounds (``federation.fraction_train``)."""
+    participants: list[list[str]] = field(default_factory=list)
+    """The vehicles that trained in each round (recorded only where rounds draw a part)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -164,6 +169,12 @@ def relative_path(path: Path, root: Path) -> str:
         raise ValueError(f"{path} lies outside {root}") from None
 
 
+SERVER_STATE_FILE = "server.pt"
+"""In a round's checkpoint directory: the roadside unit's global model and strategy state,
+where the run needs them to resume (a server-side optimiser, or rounds that draw a part
+of the fleet)."""
+
+
 def checkpoint_dir(completed_rounds: int) -> str:
     """Where the clients' states after round ``completed_rounds`` go, relative to the run."""
     return f"{CHECKPOINT_DIR}/round_{completed_rounds:04d}"
@@ -203,15 +214,20 @@ def read_saved_config(run_dir: Path) -> dict[str, Any]:
     return saved
 
 
-def model_files(run_dir: Path) -> dict[str, Path]:
-    """Each task's model file (``models/index.json``); ``FileNotFoundError`` if absent."""
+def model_files(run_dir: Path) -> dict[str, list[Path]]:
+    """Each task's model file(s) (``models/index.json``: one, or Sep-DDPG's per vehicle
+    of a fleet); ``FileNotFoundError`` if absent."""
     index = Path(run_dir) / MODELS_DIR / MODEL_INDEX_FILE
     if not index.is_file():
         raise FileNotFoundError(
             f"{run_dir} has no {MODELS_DIR}/{MODEL_INDEX_FILE}: training has not finished "
             "(resume it with `python -m frl.train resume=RUN_DIR`)"
         )
-    return {task: Path(run_dir) / MODELS_DIR / name for task, name in read_json(index).items()}
+    models = Path(run_dir) / MODELS_DIR
+    return {
+        task: [models / name for name in ([names] if isinstance(names, str) else names)]
+        for task, names in read_json(index).items()
+    }
 
 
 # ------------------------------------------------------------------ resume

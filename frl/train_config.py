@@ -38,6 +38,7 @@ from frl.federation.plan import (
     client_seeds,
     initial_model_seed,
 )
+from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores, threads_per_worker
 from frl.policies import YARDSTICKS
 from frl.run_directory import read_saved_config
@@ -101,6 +102,9 @@ def _schema_field(name: str, kind: Any, value: Any) -> tuple[str, Any, Any]:
     if isinstance(value, list | tuple):
         items = list(value)
         return (name, kind, field(default_factory=lambda: list(items)))
+    if isinstance(value, dict):
+        entries = dict(value)
+        return (name, kind, field(default_factory=lambda: dict(entries)))
     return (name, kind, field(default=value))
 
 
@@ -139,6 +143,17 @@ FederationSchema = schema_of(
         # Longest one worker call (a round of local training) may take before the run stops.
         ("threads_per_worker", int, 0),
         # Torch threads per worker; 0: the run's ``cores`` split evenly over the workers.
+        ("workers", int, 0),
+        # Worker processes of the processes backend; 0: one per vehicle up to
+        # max(cores, 3), beyond that vehicles share them and take turns.
+        ("strategy", str, "fedavg"),
+        # The roadside unit's aggregation (frl.federation.strategies.STRATEGIES).
+        ("strategy_params", dict[str, float], {}),
+        # The strategy's parameters, e.g. {eta: 0.01}; the rest take Flower's defaults.
+        ("vehicle_traffic", list[str] | None, None),
+        # Per vehicle, a traffic preset (frl.envs.TRAFFIC_PRESETS); null: env.scenario.
+        ("vehicle_arrival_period_steps", list[float] | None, None),
+        # Per vehicle, the humans' mean arrival period; null: its traffic's.
     ),
 )
 
@@ -210,6 +225,20 @@ class TrainSettings:
     flower: FlowerSettings = field(default_factory=FlowerSettings)
     cores: int | None = None
     """CPU cores of the run; None: every available core."""
+    strategy: StrategySpec = field(default_factory=StrategySpec)
+    vehicle_envs: tuple[EnvConfig, ...] | None = None
+    """Each vehicle's training environment where the fleet's traffic differs; None: ``env``."""
+    workers: int = 0
+
+    def worker_processes(self) -> int:
+        """Worker processes of the processes backend: ``federation.workers`` if set, else
+        one per vehicle while the fleet has at most max(cores, 3) vehicles (the paper's
+        three keep a process each), else max(cores, 3), whose vehicles take turns."""
+        fleet = self.plan.fleet_size
+        if self.workers:
+            return min(self.workers, fleet)
+        cores = self.cores or available_cores()
+        return min(fleet, max(cores, 3))
 
     def worker_threads(self, num_workers: int) -> int:
         """Torch threads of each of ``num_workers`` processes: ``threads_per_worker`` if
@@ -224,17 +253,20 @@ class TrainSettings:
         """One :class:`ClientSpec` per client of the scheme, seeded from the run seed."""
         tasks = self.plan.client_tasks
         init_seed = initial_model_seed(self.seed) if self.plan.shares_initial_model else None
+        envs = self.vehicle_envs or (self.env,) * len(tasks)
+        mu = self.strategy.proximal_mu if self.plan.aggregates else 0.0
         return [
             ClientSpec(
                 index=index,
                 task=task,
-                env=self.env,
+                env=envs[index],
                 reward=self.reward,
                 agent=self.agent,
                 agent_seed=agent_seed,
                 env_seed=env_seed,
                 device=self.device,
                 init_seed=init_seed,
+                proximal_mu=mu,
             )
             for index, (task, (agent_seed, env_seed)) in enumerate(
                 zip(tasks, client_seeds(self.seed, len(tasks)), strict=True)
@@ -292,20 +324,32 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
             targets=federation["targets"],
             weighting=federation["weighting"],
             initial_model=federation["initial_model"],
+            vehicles_per_task=federation["vehicles_per_task"],
+            fraction_train=federation["fraction_train"],
+            vehicles_per_round=federation["vehicles_per_round"],
         )
+        strategy = StrategySpec(federation["strategy"], dict(federation["strategy_params"]))
         env_config = EnvConfig.from_dict(data["env"])
+        vehicle_envs = _vehicle_envs(env_config, plan.fleet_size, federation)
         reward_config = RewardConfig(**reward)
         agent_config = DDPGConfig.from_dict(agent)
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
+    if plan.aggregates and strategy.needs_global_model and not plan.shares_initial_model:
+        raise ConfigError(
+            f"federation.strategy={strategy.name} steps from one global model; it needs "
+            "federation.initial_model=shared"
+        )
+    if federation["workers"] < 0:
+        raise ConfigError(f"federation.workers must be >= 0, got {federation['workers']!r}")
     if (
         federation["backend"] == "flower"
         and plan.aggregates
-        and flower.min_clients > len(plan.client_tasks)
+        and flower.min_clients > plan.vehicles_drawn
     ):
         raise ConfigError(
             f"federation.flower.min_clients={flower.min_clients} exceeds the "
-            f"{len(plan.client_tasks)} clients of the run"
+            f"{plan.vehicles_drawn} vehicles that train each round"
         )
     return TrainSettings(
         plan=plan,
@@ -321,7 +365,46 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         threads_per_worker=threads or None,
         flower=flower,
         cores=cores,
+        strategy=strategy,
+        vehicle_envs=vehicle_envs,
+        workers=federation["workers"],
     )
+
+
+def _vehicle_envs(
+    env: EnvConfig, fleet_size: int, federation: dict[str, Any]
+) -> tuple[EnvConfig, ...] | None:
+    """Each vehicle's environment under ``vehicle_traffic`` / ``vehicle_arrival_period_steps``
+    (a non-IID fleet); None where every vehicle drives ``env``."""
+    presets = federation["vehicle_traffic"]
+    periods = federation["vehicle_arrival_period_steps"]
+    if presets is None and periods is None:
+        return None
+    for key, values in (("vehicle_traffic", presets), ("vehicle_arrival_period_steps", periods)):
+        if values is not None and len(values) != fleet_size:
+            raise ConfigError(
+                f"federation.{key} has {len(values)} entries for a fleet of {fleet_size} "
+                f"vehicle{'s' * (fleet_size > 1)}; give one per vehicle"
+            )
+    envs = []
+    for index in range(fleet_size):
+        scenario = env.scenario
+        if presets is not None:
+            if presets[index] not in TRAFFIC_PRESETS:
+                raise ConfigError(
+                    f"unknown traffic preset {presets[index]!r} in federation.vehicle_traffic; "
+                    f"choose from {', '.join(TRAFFIC_PRESETS)}"
+                )
+            scenario = dataclasses.replace(scenario, **TRAFFIC_PRESETS[presets[index]])
+        if periods is not None:
+            try:
+                scenario = dataclasses.replace(
+                    scenario, human_arrival_period_steps=float(periods[index])
+                )
+            except ValueError as error:
+                raise ConfigError(f"federation.vehicle_arrival_period_steps: {error}") from None
+        envs.append(dataclasses.replace(env, scenario=scenario))
+    return tuple(envs)
 
 
 def _check_cores(cores: int) -> int | None:

@@ -18,8 +18,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from frl import run_directory as rundir
 from frl.agents.precision import precision_report
+from frl.envs.config import traffic_name
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.coordinator import Coordinator
+from frl.federation.strategies import ServerStrategy
 from frl.federation.tensorboard import (
     EPISODE_WINDOW,
     TrainingLogger,
@@ -143,18 +145,39 @@ def train_rounds(
 
         return flower_rounds(settings, specs, run_dir, state, progress, on_round_end)
     tb_dir = run_dir / rundir.TB_DIR
+    workers = settings.worker_processes()
     with (
         TrainingLogger(
-            tb_dir, purge_step=resume_purge_step(tb_dir, state.steps_per_client)
+            tb_dir,
+            purge_step=resume_purge_step(tb_dir, state.steps_per_client),
+            tasks=settings.plan.client_tasks,
         ) as logger,
         ProcessClientPool(
             specs,
-            num_threads=settings.worker_threads(len(specs)),
+            num_threads=settings.worker_threads(workers),
             timeout_s=settings.worker_timeout_s,
             state_dir=run_dir,
+            num_workers=workers,
         ) as pool,
     ):
-        return Coordinator(settings.plan, pool, run_dir, logger, progress, on_round_end).run(state)
+        coordinator = Coordinator(
+            settings.plan,
+            pool,
+            run_dir,
+            logger,
+            progress,
+            on_round_end,
+            seed=settings.seed,
+            strategy=ServerStrategy(settings.strategy),
+        )
+        return coordinator.run(state)
+
+
+def traffic_label(scenario: Any) -> str:
+    """A vehicle's traffic in results.json: its preset, with its arrival period."""
+    return (
+        f"{traffic_name(scenario)} (arrival period {scenario.human_arrival_period_steps:g} steps)"
+    )
 
 
 def final_episode_return_mean(state: RunState) -> float | None:
@@ -179,8 +202,24 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
         "seed": settings.seed,
         "interval": plan.interval,
         "total_steps": plan.total_steps,
-        "tasks": list(plan.tasks),
+        "tasks": list(plan.test_tasks),
         "clients": [spec.name for spec in settings.client_specs()],
+        "fleet": {
+            "vehicles": plan.fleet_size,
+            "vehicle_tasks": list(plan.client_tasks),
+            "vehicles_per_round": plan.vehicles_drawn,
+            "strategy": settings.strategy.name if plan.aggregates else None,
+            "strategy_params": dict(settings.strategy.params) if plan.aggregates else None,
+            "vehicle_traffic": (
+                None
+                if settings.vehicle_envs is None
+                else [traffic_label(env.scenario) for env in settings.vehicle_envs]
+            ),
+            "vehicle_steps": {
+                spec.name: state.vehicle_steps.get(spec.name, 0) for spec in settings.client_specs()
+            },
+            "participants": state.participants or None,
+        },
         "rounds": state.completed_rounds,
         # Resolved on the machine that wrote this file; workers on it resolve alike.
         "agent_precision": precision_report(settings.agent.precision, settings.device),

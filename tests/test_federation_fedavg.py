@@ -119,7 +119,6 @@ def test_plan_rounds_cover_the_budget():
         ({"interval": 0}, "interval must be"),
         ({"interval": 20_000}, "interval must be"),
         ({"tasks": ("left", "uturn")}, "unknown task 'uturn'"),
-        ({"tasks": ("left", "left")}, "must not repeat"),
         ({"targets": "copy"}, "federation.targets"),
         ({"weighting": "loss"}, "federation.weighting"),
     ],

@@ -76,6 +76,32 @@ def test_simulation_matches_the_in_process_backend(in_process_run, tmp_path):
     assert multiprocessing.active_children() == []
 
 
+FLEET = [
+    "federation.vehicles_per_task=2",
+    "federation.tasks=[left,right]",
+    "federation.fraction_train=0.5",
+    "federation.strategy=fedavgm",
+    "+federation.strategy_params={server_momentum: 0.5}",
+    "federation.vehicle_arrival_period_steps=[25,50,25,50]",
+    "total_steps=120",
+    "interval=40",
+    "eval_episodes=0",
+    "cores=1",
+]
+
+
+def test_a_sampled_fleet_with_flowers_fedavgm_matches_the_processes_backend(tmp_path):
+    """Four vehicles, two drawn per round, Flower's own FedAvgM at the roadside unit."""
+    reference = train(compose_config(tmp_path / "processes", FLEET))
+    results = train(compose_config(tmp_path / "flower", [*FLEET, *FLOWER]))
+
+    assert results["fleet"]["participants"] == reference["fleet"]["participants"]
+    assert results["fleet"]["vehicle_steps"] == reference["fleet"]["vehicle_steps"]
+    assert results["communication"] == reference["communication"]
+    _assert_same_model(tmp_path / "processes", tmp_path / "flower")
+    assert multiprocessing.active_children() == []
+
+
 @pytest.mark.slow
 def test_deployment_on_loopback_matches_and_leaves_no_process(in_process_run, tmp_path):
     """A SuperLink and three SuperNodes (each with its vehicle process) on 127.0.0.1."""
@@ -149,7 +175,7 @@ def test_the_failure_policy_stops_or_drops_as_configured(tmp_path):
 def test_flower_settings_are_checked_before_anything_starts():
     with pytest.raises(ConfigError, match="runtime"):
         validate(compose_config(None, [*FLOWER, "federation.flower.runtime=cloud"]))
-    with pytest.raises(ConfigError, match="min_clients=4 exceeds the 3 clients"):
+    with pytest.raises(ConfigError, match="min_clients=4 exceeds the 3 vehicles that train"):
         validate(compose_config(None, [*FLOWER, "federation.flower.min_clients=4"]))
     with pytest.raises(ConfigError, match="host:port"):
         validate(compose_config(None, [*FLOWER, "federation.flower.superlink=nowhere"]))

@@ -155,6 +155,10 @@ class DDPG:
         self._online_params = [p for net in online if net is not None for p in net.parameters()]
         self._target_params = [p for net in targets if net is not None for p in net.parameters()]
         self._critics = [net for net in (self.critic, self.critic2) if net is not None]
+        self._proximal_mu = 0.0
+        # FedProx: (parameter, the global model's value it is pulled towards).
+        self._proximal_actor: list[tuple[Tensor, Tensor]] = []
+        self._proximal_critic: list[tuple[Tensor, Tensor]] = []
 
         self.actor_optimizer = _make_adam(list(self.actor.parameters()), cfg.actor_lr, self.device)
         # One optimizer over both critics, as TD3's reference code and SB3 keep them.
@@ -477,6 +481,8 @@ class DDPG:
             critic_loss = critic_loss + F.mse_loss(q_other, target_q)
         self.critic_optimizer.zero_grad(set_to_none=True)
         critic_loss.backward()
+        if self._proximal_critic:
+            self._add_proximal_gradient(self._proximal_critic)
         self.critic_optimizer.step()
         q = q_values[0].detach()
         stats = {
@@ -525,6 +531,8 @@ class DDPG:
                 actor_loss.backward()
         finally:
             self.critic.requires_grad_(True)
+        if self._proximal_actor:
+            self._add_proximal_gradient(self._proximal_actor)
         self.actor_optimizer.step()
         return actor_loss.detach()
 
@@ -622,6 +630,30 @@ class DDPG:
         with torch.no_grad():
             for key, tensor in expected.items():
                 tensor.copy_(state[key])
+
+    def set_proximal_anchor(self, mu: float) -> None:
+        """FedProx (Li et al. 2020): from now on each update adds mu/2 ||w - w_anchor||^2 to
+        the critic and actor losses, w_anchor the online networks as they are now (the
+        global model just loaded). ``mu`` = 0 removes the term."""
+        if not mu >= 0:
+            raise ValueError(f"proximal mu must be >= 0, got {mu!r}")
+
+        def anchored(nets: list[nn.Module]) -> list[tuple[Tensor, Tensor]]:
+            return [(p, p.detach().clone()) for net in nets for p in net.parameters()]
+
+        self._proximal_mu = float(mu)
+        self._proximal_actor = anchored([self.actor]) if mu else []
+        self._proximal_critic = anchored(self._critics) if mu else []
+
+    def _add_proximal_gradient(self, anchored: list[tuple[Tensor, Tensor]]) -> None:
+        """The proximal term's gradient, mu (w - w_anchor), added to each parameter's."""
+        with torch.no_grad():
+            for param, anchor in anchored:
+                pull = (param - anchor).mul_(self._proximal_mu)
+                if param.grad is None:
+                    param.grad = pull
+                else:
+                    param.grad.add_(pull)
 
     def sync_targets(self) -> None:
         """Hard-copy the online networks into the targets (e.g. after FedAvg of onlines)."""

@@ -68,6 +68,9 @@ class ClientSpec:
     init_seed: int | None = None
     """Seed of the network initialisation when the clients share one initial model (the
     same for every client); None: drawn from ``agent_seed``."""
+    proximal_mu: float = 0.0
+    """FedProx: weight of mu/2 ||w - w_global||^2 in the critic and actor losses, w_global
+    the global model last received (0: plain local training)."""
 
     @property
     def name(self) -> str:
@@ -125,6 +128,8 @@ class VehicleClient:
         )
         if spec.agent.warmup_policy == "gap_acceptance":
             self.agent.set_warmup_policy(GapAcceptancePolicy(self.env.config))
+        if spec.proximal_mu:
+            self.agent.set_proximal_anchor(spec.proximal_mu)
         self._observation: np.ndarray | None = None
         self._restarts = 0
         """SUMO (re)starts so far; the next start uses ``training_sumo_seed(env_seed, n)``."""
@@ -274,6 +279,8 @@ class VehicleClient:
         self.agent.load_federated_state(state)
         if sync_targets:
             self.agent.sync_targets()
+        if self.spec.proximal_mu:
+            self.agent.set_proximal_anchor(self.spec.proximal_mu)
 
     # -------------------------------------------------------------- evaluation
     def policy(self) -> Policy:
@@ -311,6 +318,9 @@ class VehicleClient:
         (SUMO's state is not saved): the next step starts a new simulation."""
         directory = Path(directory)
         self.agent.restore(directory / f"{self.name}.pt")
+        if self.spec.proximal_mu:
+            # Checkpoints follow the download of the round's global model: the anchor.
+            self.agent.set_proximal_anchor(self.spec.proximal_mu)
         state = json.loads((directory / f"{self.name}.json").read_text())
         self._restarts = int(state["restarts"])
         self._episodes_total = int(state["episodes_total"])

@@ -2,11 +2,16 @@
 
 One round (Section III.C, Fig. 2):
 
-1. every client trains ``interval`` environment steps locally, in parallel;
-2. ``fedavg`` only: the clients upload their models, the roadside unit averages them
-   (Eq. (3)) and sends the global model back to every client;
+1. every vehicle trains ``interval`` environment steps locally, in parallel; where rounds
+   draw a part of the fleet (``fraction_train``), only the drawn vehicles, each first
+   receiving the current global model, as Flower's ``configure_train`` sends it;
+2. ``fedavg`` only: the vehicles upload their models, the roadside unit aggregates them
+   with the run's strategy (Eq. (3) by default, :mod:`frl.federation.strategies`) and,
+   where the whole fleet trains, sends the global model back to every vehicle;
 3. the round is logged and checkpointed: every client's full state (agent, replay
-   buffer, optimizer, noise, generators), then ``state.json``, which commits the round.
+   buffer, optimizer, noise, generators), the roadside unit's (the global model and the
+   strategy's momentum or moments, where the run needs them), then ``state.json``,
+   which commits the round.
 
 A run killed at any point resumes from the last committed round with nothing before it
 lost; the episode that was running at the kill is dropped, since SUMO's state is not
@@ -23,10 +28,13 @@ from typing import Any
 import numpy as np
 
 from frl import run_directory as rundir
+from frl.agents.checkpoint import read_checkpoint, write_checkpoint
+from frl.agents.ddpg import is_target_key
 from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool
-from frl.federation.fedavg import fedavg, state_nbytes
-from frl.federation.plan import FederationPlan
+from frl.federation.fedavg import state_nbytes
+from frl.federation.plan import FederationPlan, round_sample
+from frl.federation.strategies import ServerStrategy, StrategySpec
 from frl.federation.tensorboard import EPISODE_WINDOW, TrainingLogger
 from frl.fileio import write_json_atomic
 from frl.run_directory import RoundHook, RunState
@@ -42,6 +50,9 @@ class Coordinator:
         logger: TensorBoard logger, or None.
         progress: show a progress bar over the run.
         on_round_end: called after each committed round (tests use it to simulate a kill).
+        seed: the run seed, from which rounds draw their vehicles.
+        strategy: the aggregation (default: FedAvg, Eq. (3)); Flower's backend passes its
+            own classes behind the same ``aggregate`` / ``state_dict`` methods.
     """
 
     def __init__(
@@ -52,6 +63,8 @@ class Coordinator:
         logger: TrainingLogger | None = None,
         progress: bool = False,
         on_round_end: RoundHook | None = None,
+        seed: int = 0,
+        strategy: ServerStrategy | None = None,
     ) -> None:
         self.plan = plan
         self.clients = clients
@@ -59,11 +72,30 @@ class Coordinator:
         self.logger = logger
         self.progress = progress
         self.on_round_end = on_round_end
+        self.seed = seed
+        self.strategy = strategy or ServerStrategy(StrategySpec())
+        self.global_model: dict[str, Any] | None = None
+        """The roadside unit's copy of the global model, kept where a strategy steps
+        from it or where vehicles left out of a round fetch it later."""
+
+    @property
+    def _keeps_global_model(self) -> bool:
+        return self.plan.aggregates and (self.strategy.spec.needs_global_model or self.plan.samples)
 
     def run(self, state: RunState) -> RunState:
         """Train from ``state`` (fresh or loaded) to the end of the budget; return the state."""
         if state.checkpoint is not None and not state.training_finished:
             self.clients.load(self.run_dir / state.checkpoint)
+            self._load_server_state(self.run_dir / state.checkpoint)
+        if (
+            self.plan.aggregates
+            and self.strategy.spec.needs_global_model
+            and self.global_model is None
+            and not state.training_finished
+        ):
+            # A server optimiser steps from the shared initial model, which every vehicle
+            # holds before the first round.
+            self.global_model = self._uploadable(self.clients.get_model(0))
         step_rewards = rundir.read_step_rewards(self.run_dir, state.steps_per_client)
         progress = _RunProgress(self.progress, self.plan, state, self.clients.names)
         try:
@@ -84,6 +116,20 @@ class Coordinator:
         round_started = time.perf_counter()
         steps = self.plan.round_steps(round_index)
         start_step = state.steps_per_client
+        drawn = self._draw(round_index)
+        bytes_fetched = 0
+        if drawn is not None:
+            state.participants.append([self.clients.names[i] for i in drawn])
+            if self.plan.aggregates and self.global_model is not None:
+                # As Flower's configure_train: the drawn vehicles start from the global model.
+                began = time.perf_counter()
+                self.clients.set_parameters(
+                    self.global_model, sync_targets=self.plan.targets == "resync", vehicles=drawn
+                )
+                state.communication_s += time.perf_counter() - began
+                bytes_fetched = state_nbytes(self.global_model) * len(drawn)
+                state.downloads += len(drawn)
+                state.total_bytes_down += bytes_fetched
 
         began = time.perf_counter()
         updates = self.clients.train(
@@ -91,13 +137,21 @@ class Coordinator:
             upload=self.plan.aggregates,
             include_targets=self.plan.targets == "average",
             on_progress=progress.on_client_progress if self.progress else None,
+            vehicles=drawn,
         )
         state.local_training_s += time.perf_counter() - began
         state.dropped_clients.update(self.clients.dropped)
         state.client_cpu_s += sum(u.cpu_time_s for u in updates)
         state.client_training_s += max((u.wall_time_s for u in updates), default=0.0)
 
-        bytes_up, bytes_down = self._aggregate(updates, state) if self.plan.aggregates else (0, 0)
+        for update in updates:
+            state.vehicle_steps[update.client] = update.total_steps
+        bytes_up, bytes_down = (
+            self._aggregate(updates, state, round_index + 1, broadcast=drawn is None)
+            if self.plan.aggregates
+            else (0, 0)
+        )
+        bytes_down += bytes_fetched
         state.completed_rounds = round_index + 1
         state.steps_per_client = start_step + steps
         returns_before = {name: list(window) for name, window in state.recent_returns.items()}
@@ -132,30 +186,60 @@ class Coordinator:
         progress.round_committed(state)
         return step_rewards
 
-    def _aggregate(self, updates: list[LocalUpdate], state: RunState) -> tuple[int, int]:
-        """FedAvg the uploads and send the global model down; the round's bytes up and down."""
+    def _draw(self, round_index: int) -> list[int] | None:
+        """The vehicles (indices into ``clients.names``) that train this round; None: all."""
+        if not self.plan.samples:
+            return None
+        live = range(len(self.clients.names))
+        return round_sample(self.seed, round_index, live, min(self.plan.vehicles_drawn, len(live)))
+
+    def _aggregate(
+        self, updates: list[LocalUpdate], state: RunState, server_round: int, broadcast: bool
+    ) -> tuple[int, int]:
+        """Aggregate the uploads with the strategy and, with ``broadcast``, send the global
+        model down to every vehicle; the round's bytes up and down."""
         began = time.perf_counter()
         uploads = [u.parameters for u in updates]
         if any(p is None for p in uploads):
             raise RuntimeError("a client sent no parameters in an aggregation round")
         weights = [u.num_steps for u in updates] if self.plan.weighting == "steps" else None
-        global_model = fedavg(uploads, weights)  # type: ignore[arg-type]
+        global_model = self.strategy.aggregate(
+            uploads,  # type: ignore[arg-type]
+            weights,
+            self.global_model,
+            server_round,
+        )
+        if self._keeps_global_model:
+            self.global_model = global_model
         state.aggregation_s += time.perf_counter() - began
-        began = time.perf_counter()
-        self.clients.set_parameters(global_model, sync_targets=self.plan.targets == "resync")
-        state.communication_s += time.perf_counter() - began
         state.bytes_per_upload = state_nbytes(uploads[0])  # type: ignore[arg-type]
         state.bytes_per_download = state_nbytes(global_model)
         bytes_up = sum(state_nbytes(p) for p in uploads)  # type: ignore[arg-type]
-        bytes_down = state.bytes_per_download * len(updates)
         state.uploads += len(updates)
-        state.downloads += len(updates)
         state.total_bytes_up += bytes_up
+        if not broadcast:
+            return bytes_up, 0
+        began = time.perf_counter()
+        self.clients.set_parameters(global_model, sync_targets=self.plan.targets == "resync")
+        state.communication_s += time.perf_counter() - began
+        bytes_down = state.bytes_per_download * len(self.clients.names)
+        state.downloads += len(self.clients.names)
         state.total_bytes_down += bytes_down
         return bytes_up, bytes_down
 
+    def _uploadable(self, model: dict[str, Any]) -> dict[str, Any]:
+        """``model`` as the vehicles upload it (without targets under ``targets=resync``)."""
+        if self.plan.targets == "average":
+            return model
+        return {key: value for key, value in model.items() if not is_target_key(key)}
+
     def _finish(self, state: RunState) -> None:
         """Save the final models, mark training finished and drop the last checkpoint."""
+        if self.plan.aggregates and self.plan.samples and self.global_model is not None:
+            # The first vehicle may have sat out the last round: it writes the global model.
+            self.clients.set_parameters(
+                self.global_model, sync_targets=self.plan.targets == "resync", vehicles=[0]
+            )
         self._save_models()
         state.training_finished = True
         checkpoint, state.checkpoint = state.checkpoint, None
@@ -172,6 +256,7 @@ class Coordinator:
         if directory.exists():  # left by a session killed before it committed this round
             shutil.rmtree(directory)
         self.clients.save(directory)
+        self._save_server_state(directory)
         state.dropped_clients.update(self.clients.dropped)  # a client may fail while saving
         rundir.write_step_rewards(self.run_dir, step_rewards)
         state.checkpoint = relative
@@ -179,6 +264,23 @@ class Coordinator:
         for old in directory.parent.glob("round_*"):
             if old.name != directory.name:
                 shutil.rmtree(old, ignore_errors=True)
+
+    def _save_server_state(self, directory: Path) -> None:
+        """The global model and the strategy's state, where resuming needs them."""
+        if not self._keeps_global_model or self.global_model is None:
+            return
+        write_checkpoint(
+            {"global_model": self.global_model, "strategy": self.strategy.state_dict()},
+            directory / rundir.SERVER_STATE_FILE,
+        )
+
+    def _load_server_state(self, directory: Path) -> None:
+        path = directory / rundir.SERVER_STATE_FILE
+        if not self._keeps_global_model or not path.exists():
+            return
+        data = read_checkpoint(path)
+        self.global_model = dict(data["global_model"])
+        self.strategy.load_state_dict(dict(data["strategy"]))
 
     def _save_models(self) -> None:
         """Final models under ``models/`` and ``models/index.json`` (task -> file)."""

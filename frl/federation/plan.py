@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,8 +41,12 @@ class FederationPlan:
 
     scheme: str = "fedavg"
     tasks: tuple[str, ...] = TASKS
-    """Client tasks of ``separate``/``fedavg``, the tasks ``central`` draws from, and
-    the tasks every scheme is tested on."""
+    """Vehicle tasks of ``separate``/``fedavg`` (a task may repeat: one vehicle per entry),
+    the tasks ``central`` draws from; every scheme is tested on each distinct task."""
+    vehicles_per_task: int = 1
+    """The fleet is ``tasks`` repeated this many times, interleaved (left, straight,
+    right, left, ...), so vehicle i is the same in every fleet that has it. ``central``
+    stays one agent."""
     total_steps: int = 10_000
     """Environment steps per agent (the paper's budget: 10,000)."""
     interval: int = 2_000
@@ -51,6 +56,11 @@ class FederationPlan:
     online networks are uploaded and averaged; each client then copies online -> target."""
     weighting: str = "equal"
     """``equal``: Eq. (3). ``steps``: clients weighted by their steps in the round."""
+    fraction_train: float = 1.0
+    """Share of the fleet drawn to train each round, as Flower's ``fraction_train``:
+    max(1, floor(fraction x vehicles)) vehicles; the others keep their state."""
+    vehicles_per_round: int | None = None
+    """Vehicles drawn each round, instead of ``fraction_train`` (None: use the fraction)."""
     initial_model: str | None = None
     """``shared``: every client's networks start from one initial model drawn from the run
     seed, as FedAvg's clients start from the server's initial global model. ``independent``:
@@ -70,8 +80,33 @@ class FederationPlan:
                 raise ValueError(
                     f"unknown task {task!r} in federation.tasks; choose from {', '.join(TASKS)}"
                 )
-        if len(set(self.tasks)) != len(self.tasks):
-            raise ValueError(f"federation.tasks must not repeat a task, got {list(self.tasks)}")
+        if not _is_int(self.vehicles_per_task) or self.vehicles_per_task < 1:
+            raise ValueError(
+                f"federation.vehicles_per_task must be a positive integer, "
+                f"got {self.vehicles_per_task!r}"
+            )
+        fraction = self.fraction_train
+        if (
+            isinstance(fraction, bool)
+            or not isinstance(fraction, (int, float))
+            or not (0 < fraction <= 1)
+        ):
+            raise ValueError(f"federation.fraction_train must be in (0, 1], got {fraction!r}")
+        per_round = self.vehicles_per_round
+        if per_round is not None:
+            if not _is_int(per_round) or per_round < 1:
+                raise ValueError(
+                    f"federation.vehicles_per_round must be a positive integer, got {per_round!r}"
+                )
+            if fraction != 1:
+                raise ValueError(
+                    "set federation.fraction_train or federation.vehicles_per_round, not both"
+                )
+            if per_round > self.fleet_size:
+                raise ValueError(
+                    f"federation.vehicles_per_round={per_round} exceeds the fleet's "
+                    f"{self.fleet_size} vehicle{'s' * (self.fleet_size > 1)}"
+                )
         if not _is_int(self.total_steps) or self.total_steps <= 0:
             raise ValueError(f"total_steps must be a positive integer, got {self.total_steps!r}")
         if not _is_int(self.interval) or not 0 < self.interval <= self.total_steps:
@@ -107,8 +142,33 @@ class FederationPlan:
 
     @property
     def client_tasks(self) -> tuple[str, ...]:
-        """One entry per client: ``("random",)`` for ``central``, else ``tasks``."""
-        return ("random",) if self.scheme == "central" else self.tasks
+        """One entry per vehicle: ``("random",)`` for ``central``, else the fleet's tasks,
+        ``tasks`` repeated ``vehicles_per_task`` times (vehicle i has task i mod len(tasks))."""
+        if self.scheme == "central":
+            return ("random",)
+        return self.tasks * self.vehicles_per_task
+
+    @property
+    def fleet_size(self) -> int:
+        """Vehicles (clients) in the run."""
+        return len(self.client_tasks)
+
+    @property
+    def test_tasks(self) -> tuple[str, ...]:
+        """The distinct tasks, in order: what every scheme is tested on."""
+        return tuple(dict.fromkeys(self.tasks))
+
+    @property
+    def vehicles_drawn(self) -> int:
+        """Vehicles that train in each round (the whole fleet unless sampling)."""
+        if self.vehicles_per_round is not None:
+            return self.vehicles_per_round
+        return max(1, math.floor(self.fraction_train * self.fleet_size))
+
+    @property
+    def samples(self) -> bool:
+        """Whether rounds draw a part of the fleet."""
+        return self.vehicles_drawn < self.fleet_size
 
     @property
     def num_rounds(self) -> int:
@@ -122,17 +182,21 @@ class FederationPlan:
     def round_end_step(self, round_index: int) -> int:
         return min((round_index + 1) * self.interval, self.total_steps)
 
-    def model_files(self, client_names: list[str]) -> dict[str, str]:
-        """Which model file (under ``models/``) is tested on each task.
+    def model_files(self, client_names: list[str]) -> dict[str, str | list[str]]:
+        """Which model file(s) (under ``models/``) are tested on each task.
 
-        FedAvg-DDPG: the one global model on every task. Sep-DDPG: each task's own model.
-        Central-DDPG: its one model on every task.
+        FedAvg-DDPG: the one global model on every task. Central-DDPG: its one model on
+        every task. Sep-DDPG: each vehicle's own model on its task; a task with several
+        vehicles lists them all, and its test figures pool their episodes.
         """
         if self.scheme == "fedavg":
-            return {task: "global.pt" for task in self.tasks}
+            return {task: "global.pt" for task in self.test_tasks}
         if self.scheme == "central":
-            return {task: "central.pt" for task in self.tasks}
-        return {task: f"{name}.pt" for task, name in zip(self.tasks, client_names, strict=True)}
+            return {task: "central.pt" for task in self.test_tasks}
+        files: dict[str, list[str]] = {task: [] for task in self.test_tasks}
+        for task, name in zip(self.client_tasks, client_names, strict=True):
+            files[task].append(f"{name}.pt")
+        return {task: names[0] if len(names) == 1 else names for task, names in files.items()}
 
 
 def _is_int(value: object) -> bool:
@@ -146,6 +210,25 @@ def client_seeds(seed: int, num_clients: int) -> list[tuple[int, int]]:
         agent_seed, env_seed = child.generate_state(2, np.uint32)
         seeds.append((int(agent_seed), int(env_seed)))
     return seeds
+
+
+_SAMPLING_BRANCH = 0x5A3D
+"""Spawn-key root of the per-round draws of the vehicles that train."""
+
+
+def round_sample(seed: int, round_index: int, candidates: Sequence[int], count: int) -> list[int]:
+    """The ``count`` vehicles (of ``candidates``, their indices) that train in round
+    ``round_index`` of run ``seed``, in index order; all of them if ``count`` covers them.
+
+    Drawn without replacement from ``SeedSequence(seed, spawn_key=(0x5A3D, round))``, so a
+    resumed run draws the same vehicles.
+    """
+    candidates = sorted(candidates)
+    if count >= len(candidates):
+        return candidates
+    branch = np.random.SeedSequence(int(seed), spawn_key=(_SAMPLING_BRANCH, int(round_index)))
+    chosen = np.random.default_rng(branch).choice(len(candidates), size=count, replace=False)
+    return sorted(candidates[int(i)] for i in chosen)
 
 
 _INITIAL_MODEL_BRANCH = 0x1A17

@@ -31,6 +31,13 @@ curves of runs with different schemes, intervals or client counts line up.
 
 plus an hparams entry (key hyperparameters against ``rollout/ep_rew_mean`` and the
 ``eval/average/*`` metrics).
+
+A fleet with several vehicles per task keeps the top of the run readable: each
+vehicle's tags go to a run of its own, ``vehicles/client{i}_{task}``, under the prefix
+``vehicle/`` (``vehicle/ep_rew_mean``, ``vehicle/episode_return``, ...), so TensorBoard
+draws one chart per tag with a line per vehicle; the run itself keeps the fleet's means:
+``rollout/ep_rew_mean`` and ``tasks/{task}_ep_rew_mean`` (the mean over that task's
+vehicles of each one's window).
 """
 
 from __future__ import annotations
@@ -61,12 +68,38 @@ def step_reward_tag() -> str:
 class TrainingLogger:
     """Writes the tag scheme above into ``log_dir``; close it (or use ``with``)."""
 
-    def __init__(self, log_dir: str | os.PathLike[str], purge_step: int | None = None) -> None:
+    def __init__(
+        self,
+        log_dir: str | os.PathLike[str],
+        purge_step: int | None = None,
+        tasks: Sequence[str] | None = None,
+    ) -> None:
+        """``tasks``: each vehicle's task; where one repeats (a fleet), vehicles get runs
+        of their own and the run shows per-task means."""
         # Imported here so that importing frl.federation does not load tensorboard.
         from torch.utils.tensorboard import SummaryWriter
 
+        self._summary_writer = SummaryWriter
+        self.log_dir = Path(log_dir)
+        self.purge_step = purge_step
         # purge_step: on resume, drop events a killed session wrote after its last checkpoint.
         self.writer = SummaryWriter(os.fspath(log_dir), purge_step=purge_step, flush_secs=30)
+        self.fleet = tasks is not None and len(set(tasks)) < len(tasks)
+        self._vehicle_writers: dict[str, Any] = {}
+
+    def _vehicle(self, client: str) -> tuple[Any, str]:
+        """The writer and tag prefix of a vehicle's own tags."""
+        if not self.fleet:
+            return self.writer, client
+        writer = self._vehicle_writers.get(client)
+        if writer is None:
+            writer = self._summary_writer(
+                os.fspath(self.log_dir / "vehicles" / client),
+                purge_step=self.purge_step,
+                flush_secs=30,
+            )
+            self._vehicle_writers[client] = writer
+        return writer, "vehicle"
 
     def __enter__(self) -> TrainingLogger:
         return self
@@ -88,15 +121,14 @@ class TrainingLogger:
         """Everything about one round; steps ``start_step+1 .. start_step+num_steps``.
         ``recent_returns``: each client's last returns before this round (from the run
         state), which ``ep_rew_mean`` continues."""
-        writer = self.writer
-        self._log_return_means(updates, recent_returns or {})
+        self._log_return_means(updates, recent_returns or {}, start_step)
         rewards = np.mean(np.stack([u.step_rewards for u in updates]), axis=0)
         for offset, value in enumerate(rewards.tolist(), start=start_step + 1):
-            writer.add_scalar("train/step_reward", value, offset)
+            self.writer.add_scalar("train/step_reward", value, offset)
         for update in updates:
-            prefix = update.client
+            writer, prefix = self._vehicle(update.client)
             for episode in update.episodes:
-                step = episode.end_step
+                step = run_step(update, episode.end_step, start_step)
                 writer.add_scalar(f"{prefix}/episode_return", episode.episode_return, step)
                 writer.add_scalar(f"{prefix}/episode_collision", float(episode.collision), step)
                 writer.add_scalar(f"{prefix}/episode_arrived", float(episode.arrived), step)
@@ -112,8 +144,9 @@ class TrainingLogger:
             for name in LOSS_NAMES:
                 values = update.losses.get(name)
                 if values is not None:
-                    self._windows(f"{prefix}/{name}", values, start_step, np.mean)
-            self._log_actions(prefix, update.actions, start_step)
+                    self._windows(writer, f"{prefix}/{name}", values, start_step, np.mean)
+            self._log_actions(writer, prefix, update.actions, start_step)
+        writer = self.writer
         end_step = start_step + len(rewards)
         writer.add_scalar("server/round", round_number, end_step)
         writer.add_scalar("server/bytes_up", bytes_up, end_step)
@@ -122,16 +155,20 @@ class TrainingLogger:
         writer.add_scalar("server/round_time_s", round_time_s, end_step)
 
     def _log_return_means(
-        self, updates: Sequence[LocalUpdate], recent_returns: Mapping[str, Sequence[float]]
+        self,
+        updates: Sequence[LocalUpdate],
+        recent_returns: Mapping[str, Sequence[float]],
+        start_step: int,
     ) -> None:
         """``ep_rew_mean`` per client and averaged over the clients, at each step where an
-        episode ended; the average once every client has ended one (as in the report)."""
+        episode ended; the average once every client has ended one (as in the report).
+        Vehicles left out of the round keep their windows in the average."""
+        names = list(dict.fromkeys([*recent_returns, *(u.client for u in updates)]))
         windows = {
-            u.client: deque(recent_returns.get(u.client, ()), maxlen=EPISODE_WINDOW)
-            for u in updates
+            name: deque(recent_returns.get(name, ()), maxlen=EPISODE_WINDOW) for name in names
         }
         ends = sorted(
-            (episode.end_step, update.client, episode.episode_return)
+            (run_step(update, episode.end_step, start_step), update.client, episode.episode_return)
             for update in updates
             for episode in update.episodes
         )
@@ -139,12 +176,23 @@ class TrainingLogger:
             for _, client, episode_return in ended:
                 windows[client].append(episode_return)
                 mean = float(np.mean(windows[client]))
-                self.writer.add_scalar(f"{client}/ep_rew_mean", mean, step)
+                writer, prefix = self._vehicle(client)
+                writer.add_scalar(f"{prefix}/ep_rew_mean", mean, step)
             if all(windows.values()):
                 average = mean_over_clients(windows.values())
                 self.writer.add_scalar("rollout/ep_rew_mean", average, step)
+                if self.fleet:
+                    by_task: dict[str, list[deque[float]]] = {}
+                    for name, window in windows.items():
+                        by_task.setdefault(name.split("_", 1)[1], []).append(window)
+                    for task, task_windows in by_task.items():
+                        self.writer.add_scalar(
+                            f"tasks/{task}_ep_rew_mean", mean_over_clients(task_windows), step
+                        )
 
-    def _log_actions(self, prefix: str, actions: Mapping[str, np.ndarray], start_step: int) -> None:
+    def _log_actions(
+        self, writer: Any, prefix: str, actions: Mapping[str, np.ndarray], start_step: int
+    ) -> None:
         """Histograms per round and saturation per window: a policy stuck at +-1 shows."""
         end = start_step + max((len(v) for v in actions.values()), default=0)
         for series, tag in (("executed", "action"), ("policy", "policy_action")):
@@ -153,24 +201,27 @@ class TrainingLogger:
                 continue
             finite = values[np.isfinite(values)]
             if finite.size:
-                self.writer.add_histogram(f"{prefix}/{tag}", finite, end)
+                writer.add_histogram(f"{prefix}/{tag}", finite, end)
             self._windows(
+                writer,
                 f"{prefix}/{tag}_at_bounds",
                 values,
                 start_step,
                 lambda w: np.mean(np.abs(w) >= AT_BOUND),
             )
             if series == "policy":
-                self._windows(f"{prefix}/policy_action_mean", values, start_step, np.mean)
+                self._windows(writer, f"{prefix}/policy_action_mean", values, start_step, np.mean)
 
-    def _windows(self, tag: str, values: np.ndarray, start_step: int, statistic: Any) -> None:
+    def _windows(
+        self, writer: Any, tag: str, values: np.ndarray, start_step: int, statistic: Any
+    ) -> None:
         """``statistic`` of the finite values of each window of LOSS_WINDOW_STEPS steps."""
         for begin in range(0, len(values), LOSS_WINDOW_STEPS):
             window = values[begin : begin + LOSS_WINDOW_STEPS]
             window = window[np.isfinite(window)]
             if window.size:
                 end = start_step + min(begin + LOSS_WINDOW_STEPS, len(values))
-                self.writer.add_scalar(tag, float(statistic(window)), end)
+                writer.add_scalar(tag, float(statistic(window)), end)
 
     def log_evaluation(
         self,
@@ -205,9 +256,22 @@ class TrainingLogger:
 
     def flush(self) -> None:
         self.writer.flush()
+        for writer in self._vehicle_writers.values():
+            writer.flush()
 
     def close(self) -> None:
         self.writer.close()
+        for writer in self._vehicle_writers.values():
+            writer.close()
+
+
+def run_step(update: LocalUpdate, vehicle_step: int, start_step: int) -> int:
+    """A vehicle's step count on the run's axis (steps per client since the run began).
+
+    A vehicle left out of earlier rounds has taken fewer steps than the run's axis counts;
+    its step in this round is placed at the same offset from the round's start.
+    """
+    return start_step + vehicle_step - (update.total_steps - update.num_steps)
 
 
 def _hparam_value(value: Any) -> bool | int | float | str:

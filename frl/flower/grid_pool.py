@@ -92,7 +92,7 @@ class FlowerClientPool:
         self.dropped: dict[str, str] = dict(dropped or {})
         """Vehicles dropped after a failure, with the reason (kept in ``state.json``)."""
         self._nodes: dict[int, int] = {}
-        self._pending: tuple[dict[str, Tensor], bool] | None = None
+        self._pending: tuple[dict[str, Tensor], bool, list[int] | None] | None = None
 
     @property
     def names(self) -> list[str]:
@@ -208,17 +208,25 @@ class FlowerClientPool:
         )
 
     def _flush(self, checkpoint: str | None = None) -> None:
-        """Send the held global model (and a checkpoint order) to every live vehicle."""
+        """Send the held global model (and a checkpoint order) to every live vehicle, or
+        the model to the vehicles it is held for."""
         if self._pending is None and checkpoint is None:
             return
-        parameters, sync_targets = self._pending or (None, False)
+        parameters, sync_targets, chosen = self._pending or (None, False, None)
+        live = self._live()
+        if parameters is not None and chosen is not None:
+            header = {"parameters": True, "sync_targets": sync_targets, "checkpoint": None}
+            self._exchange("sync", {live[i].index: header for i in chosen}, parameters)
+            parameters = None
+        self._pending = None
+        if parameters is None and checkpoint is None:
+            return
         header = {
             "parameters": parameters is not None,
             "sync_targets": sync_targets,
             "checkpoint": checkpoint,
         }
-        self._exchange("sync", {spec.index: header for spec in self._live()}, parameters)
-        self._pending = None
+        self._exchange("sync", {spec.index: header for spec in live}, parameters)
 
     # ------------------------------------------------------------------ ClientPool
     def train(
@@ -227,14 +235,18 @@ class FlowerClientPool:
         upload: bool,
         include_targets: bool,
         on_progress: ProgressHook | None = None,
+        vehicles: Sequence[int] | None = None,
     ) -> list[LocalUpdate]:
-        """Local training on every live vehicle; the updates of those that answered.
+        """Local training on the live vehicles ``vehicles`` (indices into :attr:`names`;
+        None: all); the updates of those that answered.
 
         ``on_progress`` is not called: Flower replies once per round.
         """
         self._flush()
         header = {"num_steps": num_steps, "upload": upload, "include_targets": include_targets}
-        replies = self._exchange("train", {spec.index: header for spec in self._live()})
+        live = self._live()
+        chosen = live if vehicles is None else [live[i] for i in vehicles]
+        replies = self._exchange("train", {spec.index: header for spec in chosen})
         updates = []
         for index in sorted(replies):
             content = replies[index].content
@@ -250,9 +262,26 @@ class FlowerClientPool:
             updates.append(update)
         return updates
 
-    def set_parameters(self, parameters: dict[str, Tensor], sync_targets: bool) -> None:
-        """Hold the global model; it goes down with the next exchange."""
-        self._pending = (parameters, sync_targets)
+    def set_parameters(
+        self,
+        parameters: dict[str, Tensor],
+        sync_targets: bool,
+        vehicles: Sequence[int] | None = None,
+    ) -> None:
+        """Hold the global model for the live vehicles ``vehicles`` (None: all); it goes
+        down with the next exchange."""
+        self._pending = (parameters, sync_targets, None if vehicles is None else list(vehicles))
+
+    def get_model(self, index: int) -> dict[str, Tensor]:
+        """Live vehicle ``index``'s whole model (online and target networks)."""
+        from frl.federation.codec import arrays_to_tensors
+
+        self._flush()
+        spec = self._live()[index]
+        replies = self._exchange("model", {spec.index: {}})
+        if spec.index not in replies:
+            raise ClientFailure(spec.name, "no answer to 'model'")
+        return arrays_to_tensors(record_to_arrays(replies[spec.index].content[PARAMETERS]))
 
     def save(self, directory: Path) -> None:
         self._flush(checkpoint=self._relative(directory))

@@ -25,6 +25,7 @@ from frl.federation.tensorboard import TrainingLogger, resume_purge_step
 from frl.fileio import write_json_atomic
 from frl.flower.grid_pool import FlowerClientPool
 from frl.flower.messages import RUN_DIR_KEY
+from frl.flower.strategies import FlowerServerStrategy
 from frl.run_directory import RoundHook, RunState
 from frl.train_config import TrainSettings, load_run_config, validate
 
@@ -55,9 +56,20 @@ def run_roadside_unit(
     pool.connect()
     tb_dir = run_dir / rundir.TB_DIR
     with TrainingLogger(
-        tb_dir, purge_step=resume_purge_step(tb_dir, state.steps_per_client)
+        tb_dir,
+        purge_step=resume_purge_step(tb_dir, state.steps_per_client),
+        tasks=settings.plan.client_tasks,
     ) as logger:
-        coordinator = Coordinator(settings.plan, pool, run_dir, logger, progress, on_round_end)
+        coordinator = Coordinator(
+            settings.plan,
+            pool,
+            run_dir,
+            logger,
+            progress,
+            on_round_end,
+            seed=settings.seed,
+            strategy=FlowerServerStrategy(settings.strategy),
+        )
         return coordinator.run(state)
 
 

@@ -1,0 +1,150 @@
+"""How a fleet scales on one machine: wall time, memory and bytes for 3 to 24 vehicles.
+
+    python benchmarks/fleet_scaling.py [--fleets 3,6,12,24] [--total-steps 400]
+        [--interval 200] [--out runs/fleet-scaling] [-- HYDRA_OVERRIDES...]
+
+Trains FedAvg-DDPG (default agent and traffic) with 1, 2, 4 and 8 vehicles per task at a
+small budget, one fleet after the other, each as ``python -m frl.train`` (no test
+episodes), and samples the resident memory of the whole process tree (the coordinator,
+its worker processes and their SUMO children) every 0.2 s. Prints per fleet: the worker
+processes, wall seconds per round, the peak memory in total and per vehicle, the bytes
+up and down per round, and the share of the round loop's wall time outside local
+training (aggregation, transfers, logging, checkpoints). Fleets larger than
+max(cores, 3) share worker processes (``federation.workers``), so the time per round
+grows with the fleet while the cores stay busy and not oversubscribed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+MEMORY_TARGET_GB = 8.0
+"""Peak memory allowed for 24 vehicles on the 24 GB machine."""
+
+
+def tree_rss_bytes(root_pid: int) -> int:
+    """Resident memory of ``root_pid`` and all its descendants (Linux /proc)."""
+    children: dict[int, list[int]] = {}
+    rss: dict[int, int] = {}
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry.name}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        pid, parent = int(entry.name), int(fields[1])
+        children.setdefault(parent, []).append(pid)
+        rss[pid] = int(fields[21]) * os.sysconf("SC_PAGE_SIZE")
+    total, todo = 0, [root_pid]
+    while todo:
+        pid = todo.pop()
+        total += rss.get(pid, 0)
+        todo.extend(children.get(pid, []))
+    return total
+
+
+class PeakMemory:
+    """Samples a process tree's resident memory in a thread; ``peak`` in bytes."""
+
+    def __init__(self, pid: int, every_s: float = 0.2) -> None:
+        self.pid, self.every_s, self.peak = pid, every_s, 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+
+    def _sample(self) -> None:
+        while not self._stop.is_set():
+            self.peak = max(self.peak, tree_rss_bytes(self.pid))
+            self._stop.wait(self.every_s)
+
+    def stop(self) -> int:
+        self._stop.set()
+        self._thread.join()
+        return self.peak
+
+
+def run_fleet(vehicles: int, args: argparse.Namespace, overrides: list[str]) -> dict:
+    """Train one fleet; its row of the table."""
+    if vehicles % 3:
+        raise SystemExit(f"fleet sizes must be multiples of 3 (one per task), got {vehicles}")
+    run_dir = args.out / f"fleet{vehicles}"
+    shutil.rmtree(run_dir, ignore_errors=True)
+    command = [
+        sys.executable, "-m", "frl.train", f"federation.vehicles_per_task={vehicles // 3}",
+        f"total_steps={args.total_steps}", f"interval={args.interval}", "eval_episodes=0",
+        "progress=false", f"run_dir={run_dir}", *overrides,
+    ]  # fmt: skip
+    began = time.perf_counter()
+    with open(args.out / f"fleet{vehicles}.log", "wb") as log:
+        process = subprocess.Popen(command, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+        memory = PeakMemory(process.pid)
+        returncode = process.wait()
+        peak = memory.stop()
+    if returncode != 0:
+        raise SystemExit(f"fleet of {vehicles} failed; see {args.out / f'fleet{vehicles}.log'}")
+    results = json.loads((run_dir / "results.json").read_text())
+    training, communication = results["training"], results["communication"]
+    return {
+        "vehicles": vehicles,
+        "command_s": time.perf_counter() - began,
+        "seconds_per_round": training["seconds_per_round"],
+        "peak_gb": peak / 1e9,
+        "per_vehicle_mb": peak / vehicles / 1e6,
+        "mib_per_round": communication["total_bytes"] / results["rounds"] / 2**20,
+        "outside_share": training["outside_training_share"],
+        "client_cpu_s": training["client_cpu_s"],
+    }
+
+
+def main() -> None:
+    argv = sys.argv[1:]
+    overrides = argv[argv.index("--") + 1 :] if "--" in argv else []
+    argv = argv[: argv.index("--")] if "--" in argv else argv
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--fleets", default="3,6,12,24")
+    parser.add_argument("--total-steps", type=int, default=400)
+    parser.add_argument("--interval", type=int, default=200)
+    parser.add_argument("--out", type=Path, default=Path("runs/fleet-scaling"))
+    args = parser.parse_args(argv)
+    fleets = [int(v) for v in args.fleets.split(",")]
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    from frl.federation.workers import available_cores
+    from frl.train_config import load_run_config, validate
+
+    print(f"FedAvg-DDPG, default agent and traffic, {args.total_steps} steps per vehicle, "
+          f"interval {args.interval}, {available_cores()} cores; overrides: "
+          f"{' '.join(overrides) or '(none)'}")  # fmt: skip
+    header = (f"{'vehicles':>8} {'workers':>7} {'s/round':>8} {'peak GB':>8} {'MB/vehicle':>10} "
+              f"{'MiB/round':>9} {'outside':>8} {'CPU s':>7} {'command s':>9}")  # fmt: skip
+    print(header)
+    rows = []
+    for vehicles in fleets:
+        row = run_fleet(vehicles, args, overrides)
+        rows.append(row)
+        settings = validate(load_run_config(args.out / f"fleet{vehicles}"))
+        print(f"{vehicles:>8} {settings.worker_processes():>7} {row['seconds_per_round']:>8.1f} "
+              f"{row['peak_gb']:>8.2f} {row['per_vehicle_mb']:>10.0f} {row['mib_per_round']:>9.1f} "
+              f"{row['outside_share']:>8.1%} {row['client_cpu_s']:>7.0f} {row['command_s']:>9.0f}",
+              flush=True)  # fmt: skip
+    largest = max(rows, key=lambda r: r["vehicles"])
+    verdict = "within" if largest["peak_gb"] < MEMORY_TARGET_GB else "ABOVE"
+    print(
+        f"\npeak memory with {largest['vehicles']} vehicles: {largest['peak_gb']:.2f} GB, "
+        f"{verdict} the {MEMORY_TARGET_GB:g} GB target"
+    )
+
+
+if __name__ == "__main__":
+    main()

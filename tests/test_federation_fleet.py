@@ -1,0 +1,244 @@
+"""Fleets: many vehicles per task, rounds that draw a part of them, per-vehicle traffic,
+strategies and FedProx, vehicles sharing worker processes; and their bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from train_helpers import compose_config, tiny_spec
+
+from frl.federation import FederationPlan, ProcessClientPool
+from frl.federation.plan import round_sample
+from frl.run_directory import RESULTS_FILE
+from frl.train_config import ConfigError, validate
+from frl.training import train
+
+
+def test_a_fleet_repeats_the_tasks_interleaved_and_keeps_the_first_vehicles():
+    plan = FederationPlan(vehicles_per_task=2)
+    assert plan.client_tasks == ("left", "straight", "right") * 2
+    assert (plan.fleet_size, plan.test_tasks, plan.vehicles_drawn) == (6, plan.tasks, 6)
+    repeated = FederationPlan(tasks=("left", "left", "right"))
+    assert (repeated.fleet_size, repeated.test_tasks) == (3, ("left", "right"))
+    separate = FederationPlan(scheme="separate", vehicles_per_task=2)
+    names = [f"client{i}_{t}" for i, t in enumerate(separate.client_tasks)]
+    assert separate.model_files(names)["left"] == ["client0_left.pt", "client3_left.pt"]
+    assert FederationPlan(scheme="central", vehicles_per_task=4).fleet_size == 1
+    # Vehicle i's seeds do not depend on the fleet's size.
+    small = validate(compose_config(None)).client_specs()
+    large = validate(compose_config(None, ["federation.vehicles_per_task=3"])).client_specs()
+    assert [(s.agent_seed, s.env_seed, s.task) for s in small] == [
+        (s.agent_seed, s.env_seed, s.task) for s in large[:3]
+    ]
+
+
+def test_rounds_draw_from_the_run_seed():
+    plan = FederationPlan(vehicles_per_task=4, fraction_train=0.25)
+    assert plan.vehicles_drawn == 3 and plan.samples
+    draws = [round_sample(7, r, range(12), 3) for r in range(20)]
+    assert draws == [round_sample(7, r, range(12), 3) for r in range(20)]
+    assert all(len(set(d)) == 3 and d == sorted(d) for d in draws)
+    assert len({tuple(d) for d in draws}) > 10
+    assert (
+        round_sample(8, 0, range(12), 3) != draws[0] or round_sample(8, 1, range(12), 3) != draws[1]
+    )
+    assert FederationPlan(vehicles_per_task=2, vehicles_per_round=2).vehicles_drawn == 2
+
+
+@pytest.mark.parametrize(
+    ("overrides", "match"),
+    [
+        (["federation.fraction_train=0"], r"fraction_train must be in \(0, 1\], got 0"),
+        (["federation.fraction_train=1.5"], r"fraction_train must be in \(0, 1\], got 1.5"),
+        (
+            ["federation.vehicles_per_round=4"],
+            "vehicles_per_round=4 exceeds the fleet's 3 vehicles",
+        ),
+        (["federation.vehicles_per_round=2", "federation.fraction_train=0.5"], "not both"),
+        (["federation.vehicles_per_task=0"], "vehicles_per_task must be a positive integer"),
+        (["federation.strategy=fedsgd"], "unknown federation.strategy 'fedsgd'"),
+        (
+            ["federation.strategy=fedavgm", "+federation.strategy_params={eta: 0.1}"],
+            "fedavgm takes server_learning_rate, server_momentum; got 'eta'",
+        ),
+        (
+            ["federation.vehicle_traffic=[paper,dense]"],
+            "vehicle_traffic has 2 entries for a fleet of 3 vehicles",
+        ),
+        (
+            ["federation.vehicle_arrival_period_steps=[25,10,5,5]"],
+            "vehicle_arrival_period_steps has 4 entries for a fleet of 3",
+        ),
+        (["federation.vehicle_traffic=[paper,dense,busy]"], "unknown traffic preset 'busy'"),
+        (
+            ["federation.strategy=fedadam", "federation.initial_model=independent"],
+            "fedadam steps from one global model; it needs federation.initial_model=shared",
+        ),
+        (["federation.workers=-1"], "federation.workers must be >= 0"),
+    ],
+)
+def test_bad_fleet_settings_are_refused_before_anything_runs(overrides, match):
+    with pytest.raises(ConfigError, match=match):
+        validate(compose_config(None, overrides))
+
+
+def test_per_vehicle_traffic_and_proximal_weight_reach_the_vehicles():
+    settings = validate(
+        compose_config(
+            None,
+            [
+                "federation.vehicle_traffic=[paper,dense,paper]",
+                "federation.vehicle_arrival_period_steps=[25,10,50]",
+                "federation.strategy=fedprox",
+                "+federation.strategy_params={proximal_mu: 0.01}",
+            ],
+        )
+    )
+    specs = settings.client_specs()
+    periods = [s.env.scenario.human_arrival_period_steps for s in specs]
+    assert periods == [25.0, 10.0, 50.0]
+    assert specs[1].env.scenario.lane_width == 3.2  # the dense preset's
+    assert all(s.proximal_mu == 0.01 for s in specs)
+    assert settings.env.scenario.human_arrival_period_steps == 25.0  # tests stay on it
+
+
+def test_vehicles_sharing_a_worker_drive_as_they_would_alone():
+    specs = [tiny_spec(0, "left"), tiny_spec(1, "straight"), tiny_spec(2, "right")]
+    results = []
+    for workers in (3, 1):
+        with ProcessClientPool(specs, num_threads=1, num_workers=workers) as pool:
+            updates = pool.train(60, upload=True, include_targets=True)
+            later = pool.train(20, upload=False, include_targets=True, vehicles=[2])
+        results.append((updates, later))
+    (alone, alone_later), (shared, shared_later) = results
+    for a, b in zip(alone, shared, strict=True):
+        assert a.client == b.client
+        np.testing.assert_array_equal(a.step_rewards, b.step_rewards)
+        for key in a.parameters:
+            assert torch.equal(a.parameters[key], b.parameters[key]), key
+    assert [u.client for u in shared_later] == ["client2_right"]
+    assert shared_later[0].total_steps == 80
+    np.testing.assert_array_equal(alone_later[0].step_rewards, shared_later[0].step_rewards)
+
+
+def test_proximal_term_pulls_towards_the_global_model():
+    from train_helpers import TINY_AGENT, TINY_ENV
+
+    from frl.agents import DDPG
+    from frl.envs import IntersectionEnv
+
+    env = IntersectionEnv(TINY_ENV)
+    try:
+        agent = DDPG(env.observation_space, env.action_space, TINY_AGENT, seed=0)
+    finally:
+        env.close()
+    agent.set_proximal_anchor(0.5)
+    with torch.no_grad():
+        for p in agent.actor.parameters():
+            p.add_(1.0)
+    pairs = agent._proximal_actor
+    for param, _ in pairs:
+        param.grad = None
+    agent._add_proximal_gradient(pairs)
+    assert len(pairs) == len(list(agent.actor.parameters()))
+    for param, pinned in pairs:
+        torch.testing.assert_close(pinned, param.detach() - 1.0)  # the anchor did not move
+        torch.testing.assert_close(param.grad, torch.full_like(param, 0.5))  # mu (w - anchor)
+    agent.set_proximal_anchor(0.0)
+    assert agent._proximal_actor == [] and agent._proximal_critic == []
+
+
+class _Killed(Exception):
+    pass
+
+
+FLEET = [
+    "federation.vehicles_per_task=2",
+    "federation.tasks=[left,right]",
+    "federation.fraction_train=0.5",
+    "federation.strategy=fedadam",
+    "+federation.strategy_params={eta: 0.001}",
+    "federation.vehicle_arrival_period_steps=[25,50,25,50]",
+    "eval_episodes=1",
+    "yardsticks=[]",
+    "cores=1",
+]
+
+
+def _server_state(run_dir: Path, completed_rounds: int) -> dict:
+    return torch.load(
+        run_dir / "checkpoints" / f"round_{completed_rounds:04d}" / "server.pt", weights_only=True
+    )
+
+
+def test_a_sampled_fleet_with_a_server_optimiser_resumes_exactly(tmp_path):
+    """The roadside unit's global model and Adam moments, and the draws, survive a kill.
+
+    (As for every run, the episode running at the kill is dropped, so the resumed run's
+    later steps are not those of an uninterrupted one.)"""
+    saved = {}
+
+    def keep_round_two(state):
+        if state.completed_rounds == 2:
+            saved["straight"] = _server_state(tmp_path / "straight", 2)
+
+    straight = train(compose_config(tmp_path / "straight", FLEET), on_round_end=keep_round_two)
+
+    def kill_after_round(state):
+        if state.completed_rounds == 2:
+            saved["killed"] = _server_state(tmp_path / "killed", 2)
+            raise _Killed
+
+    with pytest.raises(_Killed):
+        train(compose_config(tmp_path / "killed", FLEET), on_round_end=kill_after_round)
+    resumed = train(compose_config(tmp_path / "killed", [*FLEET, "resume=true"]))
+
+    for part in ("global_model", "strategy"):
+        a, b = saved["straight"][part], saved["killed"][part]
+        assert set(a) == set(b) and a
+        assert all(torch.equal(a[k], b[k]) for k in a)
+    assert {k.split("/")[0] for k in saved["straight"]["strategy"]} == {"m", "v"}
+    fleet = straight["fleet"]
+    assert fleet["vehicles"] == 4 and fleet["vehicles_per_round"] == 2
+    assert [len(p) for p in fleet["participants"]] == [2, 2, 2]
+    assert sum(fleet["vehicle_steps"].values()) == 2 * 240
+    for key in ("participants", "vehicle_steps"):
+        assert resumed["fleet"][key] == fleet[key]
+    assert straight["communication"]["total_bytes"] == resumed["communication"]["total_bytes"]
+    # The drawn vehicles fetch the global model at the start of each round.
+    assert straight["communication"]["downloads"] == 3 * 2
+
+
+def test_a_separate_fleet_is_tested_per_task_over_its_vehicles(tmp_path):
+    results = train(
+        compose_config(
+            tmp_path / "run",
+            [
+                "federation=separate",
+                "federation.tasks=[left,right]",
+                "federation.vehicles_per_task=2",
+                "eval_episodes=2",
+                "yardsticks=[]",
+                "cores=1",
+            ],
+        )
+    )
+    index = json.loads((tmp_path / "run" / "models" / "index.json").read_text())
+    assert index == {
+        "left": ["client0_left.pt", "client2_left.pt"],
+        "right": ["client1_right.pt", "client3_right.pt"],
+    }
+    per_task = json.loads((tmp_path / "run" / RESULTS_FILE).read_text())["evaluation"]["per_task"]
+    assert per_task["left"]["episodes"] == 4  # 2 seeds x 2 vehicles
+    assert results["evaluation"]["models"] == index
+    tb = tmp_path / "run" / "tb" / "vehicles"
+    assert sorted(p.name for p in tb.iterdir()) == [
+        "client0_left",
+        "client1_right",
+        "client2_left",
+        "client3_right",
+    ]
