@@ -13,6 +13,7 @@ from train_helpers import compose_config, tiny_spec
 
 from frl.federation import FederationPlan, ProcessClientPool
 from frl.federation.plan import round_sample
+from frl.report.runs import load_run
 from frl.run_directory import RESULTS_FILE
 from frl.train_config import ConfigError, validate
 from frl.training import train
@@ -236,9 +237,10 @@ def test_a_separate_fleet_is_tested_per_task_over_its_vehicles(tmp_path):
     assert per_task["left"]["episodes"] == 4  # 2 seeds x 2 vehicles
     assert results["evaluation"]["models"] == index
     tb = tmp_path / "run" / "tb" / "vehicles"
-    assert sorted(p.name for p in tb.iterdir()) == [
-        "client0_left",
-        "client1_right",
-        "client2_left",
-        "client3_right",
-    ]
+    vehicles = ["client0_left", "client1_right", "client2_left", "client3_right"]
+    assert sorted(p.name for p in tb.iterdir()) == vehicles
+    # The report reads each vehicle's episodes from its own TensorBoard run.
+    record = load_run(tmp_path / "run")
+    assert sorted(record.episodes) == vehicles
+    counted = json.loads((tmp_path / "run" / RESULTS_FILE).read_text())["training"]["episodes"]
+    assert {name: len(e.returns) for name, e in record.episodes.items()} == counted

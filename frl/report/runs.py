@@ -243,36 +243,55 @@ def _episodes(columns: dict[str, list[float]]) -> Episodes:
 
 
 def _read_tensorboard(tb_dir: Path) -> tuple[np.ndarray, dict[str, Episodes]]:
-    # EventAccumulator applies the purge a resumed session writes (frl.train's purge_step).
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
-    accumulator = EventAccumulator(os.fspath(tb_dir), size_guidance={"scalars": 0})
-    accumulator.Reload()
+    """The step rewards and each client's episodes; a fleet's vehicles each have a run of
+    their own under ``vehicles/`` (tags ``vehicle/...``), the others sit in the run's."""
+    accumulator = _accumulator(tb_dir)
     tags = set(accumulator.Tags().get("scalars", []))
-
-    def series(tag: str) -> tuple[np.ndarray, np.ndarray]:
-        # Keep the last value written at each step, in step order.
-        by_step = {event.step: event.value for event in accumulator.Scalars(tag)}
-        steps = np.array(sorted(by_step), dtype=int)
-        return steps, np.array([by_step[s] for s in steps.tolist()], dtype=float)
-
     step_rewards = np.zeros(0)
     if STEP_REWARD_TAG in tags:
-        steps, values = series(STEP_REWARD_TAG)
+        steps, values = _series(accumulator, STEP_REWARD_TAG)
         if not np.array_equal(steps, np.arange(1, steps.size + 1)):
             raise RunDataError(f"{tb_dir}: {STEP_REWARD_TAG} misses steps")
         step_rewards = values
     episodes: dict[str, Episodes] = {}
     clients = sorted({t.split("/")[0] for t in tags if t.endswith(f"/{_EPISODE_TAGS['return']}")})
     for client in clients:
-        columns: dict[str, list[float]] = {}
-        end_steps, columns["return"] = series(f"{client}/{_EPISODE_TAGS['return']}")
-        for key in ("collision", "arrived", "steps"):
-            tag = f"{client}/{_EPISODE_TAGS[key]}"
-            steps, values = series(tag) if tag in tags else (end_steps, np.zeros(end_steps.size))
-            if not np.array_equal(steps, end_steps):
-                raise RunDataError(f"{tb_dir}: {tag} does not match {client}'s episode returns")
-            columns[key] = values
-        columns["end_step"] = end_steps
-        episodes[client] = _episodes(columns)  # type: ignore[arg-type]
+        episodes[client] = _client_episodes(accumulator, tags, client, tb_dir)
+    vehicles = tb_dir / "vehicles"
+    for run in sorted(vehicles.iterdir()) if vehicles.is_dir() else []:
+        own = _accumulator(run)
+        episodes[run.name] = _client_episodes(
+            own, set(own.Tags().get("scalars", [])), "vehicle", run
+        )
     return step_rewards, episodes
+
+
+def _accumulator(directory: Path) -> Any:
+    # EventAccumulator applies the purge a resumed session writes (frl.train's purge_step).
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    accumulator = EventAccumulator(os.fspath(directory), size_guidance={"scalars": 0})
+    accumulator.Reload()
+    return accumulator
+
+
+def _series(accumulator: Any, tag: str) -> tuple[np.ndarray, np.ndarray]:
+    # Keep the last value written at each step, in step order.
+    by_step = {event.step: event.value for event in accumulator.Scalars(tag)}
+    steps = np.array(sorted(by_step), dtype=int)
+    return steps, np.array([by_step[s] for s in steps.tolist()], dtype=float)
+
+
+def _client_episodes(accumulator: Any, tags: set[str], prefix: str, where: Path) -> Episodes:
+    columns: dict[str, Any] = {}
+    end_steps, columns["return"] = _series(accumulator, f"{prefix}/{_EPISODE_TAGS['return']}")
+    for key in ("collision", "arrived", "steps"):
+        tag = f"{prefix}/{_EPISODE_TAGS[key]}"
+        steps, values = (
+            _series(accumulator, tag) if tag in tags else (end_steps, np.zeros(end_steps.size))
+        )
+        if not np.array_equal(steps, end_steps):
+            raise RunDataError(f"{where}: {tag} does not match the episode returns")
+        columns[key] = values
+    columns["end_step"] = end_steps
+    return _episodes(columns)
