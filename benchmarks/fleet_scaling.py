@@ -4,18 +4,19 @@
         [--interval 300] [--out runs/fleet-scaling] [-- HYDRA_OVERRIDES...]
 
 Trains FedAvg-DDPG (default agent and traffic, learning from step 300 instead of 1,000
-so that every step of the third round updates the networks) with 1, 2, 4 and
-8 vehicles per task at a small budget, one fleet after the other, each as ``python -m
-frl.train`` (no test episodes), and samples the resident memory of the whole process
-tree (the coordinator, its worker processes and their SUMO children) every 0.2 s.
-Prints per fleet: the worker processes, wall seconds per learning round (from the third
-on, where every step updates), the peak memory in total and per vehicle, the bytes up and down per
-round, and the share of the round loop's wall time outside local training
-(aggregation, transfers, logging, checkpoints). The replay buffers hold sparse rows
-(about 1 MB per 1,000 steps), so a full 10,000-step run adds little to the memory
-measured here. Fleets larger than
-max(cores, 3) share worker processes (``federation.workers``), so the time per round
-grows with the fleet while the cores stay busy and not oversubscribed.
+so that every step of the third round updates the networks) with 1, 2, 4 and 8 vehicles
+per task at a small budget, one fleet after the other, each as ``python -m frl.train``
+(no test episodes), and samples the resident memory of the whole process tree (the
+coordinator, its worker processes and their SUMO children) every 0.2 s.
+
+Prints per fleet: the worker processes; wall seconds per learning round (from the third
+on); the peak memory in total and per vehicle; the bytes up and down per round; the
+share of the round loop's wall time outside local training (aggregation, transfers,
+logging, checkpoints); the vehicles' CPU seconds, and CPU milliseconds per vehicle step,
+which do not depend on what else runs. The replay buffers hold sparse rows (about 1 MB
+per 1,000 steps), so a full 10,000-step run adds little to the memory measured here.
+Fleets larger than max(cores, 3) share worker processes (``federation.workers``), so the
+time per round grows with the fleet while the cores stay busy and not oversubscribed.
 """
 
 from __future__ import annotations
@@ -111,6 +112,7 @@ def run_fleet(vehicles: int, args: argparse.Namespace, overrides: list[str]) -> 
         "mib_per_round": communication["total_bytes"] / results["rounds"] / 2**20,
         "outside_share": training["outside_training_share"],
         "client_cpu_s": training["client_cpu_s"],
+        "cpu_ms_per_step": 1000 * training["client_cpu_s"] / (vehicles * args.total_steps),
     }
 
 
@@ -136,8 +138,9 @@ def main() -> None:
           f"interval {args.interval}, learning from step {args.interval}, "
           f"{available_cores()} cores; overrides: "
           f"{' '.join(overrides) or '(none)'}")  # fmt: skip
-    header = (f"{'vehicles':>8} {'workers':>7} {'s/round':>8} {'peak GB':>8} {'MB/vehicle':>10} "
-              f"{'MiB/round':>9} {'outside':>8} {'CPU s':>7} {'command s':>9}")  # fmt: skip
+    header = (f"{'vehicles':>8} {'workers':>7} {'s/round':>8} {'peak GB':>8} "
+              f"{'MB/vehicle':>10} {'MiB/round':>9} {'outside':>8} {'CPU s':>7} "
+              f"{'CPU ms/step':>11} {'command s':>9}")  # fmt: skip
     print(header)
     rows = []
     for vehicles in fleets:
@@ -146,7 +149,8 @@ def main() -> None:
         settings = validate(load_run_config(args.out / f"fleet{vehicles}"))
         print(f"{vehicles:>8} {settings.worker_processes():>7} {row['seconds_per_round']:>8.1f} "
               f"{row['peak_gb']:>8.2f} {row['per_vehicle_mb']:>10.0f} {row['mib_per_round']:>9.1f} "
-              f"{row['outside_share']:>8.1%} {row['client_cpu_s']:>7.0f} {row['command_s']:>9.0f}",
+              f"{row['outside_share']:>8.1%} {row['client_cpu_s']:>7.0f} "
+              f"{row['cpu_ms_per_step']:>11.1f} {row['command_s']:>9.0f}",
               flush=True)  # fmt: skip
     largest = max(rows, key=lambda r: r["vehicles"])
     verdict = "within" if largest["peak_gb"] < MEMORY_TARGET_GB else "ABOVE"
