@@ -50,10 +50,8 @@ def decode_frame(frame: bytes) -> tuple[dict[str, Any], Arrays]:
     (length,) = _HEADER.unpack_from(frame)
     start = _HEADER.size
     header = json.loads(frame[start : start + length])
-    if len(frame) == start + length:
+    rest = frame[start + length :]
+    if not rest:
         return header, {}
-    # Read the archive in place: a model upload is megabytes, and a slice would copy it.
-    stream = io.BytesIO(frame)
-    stream.seek(start + length)
-    with np.load(stream, allow_pickle=False) as archive:
+    with np.load(io.BytesIO(rest), allow_pickle=False) as archive:
         return header, {key: archive[key] for key in archive.files}

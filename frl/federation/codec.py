@@ -59,16 +59,8 @@ def tensors_to_arrays(parameters: Mapping[str, Tensor]) -> Arrays:
     return {key: value.detach().cpu().numpy().copy() for key, value in parameters.items()}
 
 
-def arrays_to_tensors(arrays: Mapping[str, np.ndarray], copy: bool = True) -> dict[str, Tensor]:
-    """Tensors of ``arrays``; ``copy=False`` shares the memory of arrays this process owns
-    and may write (fresh from a frame), which a fleet's uploads need not hold twice."""
-    return {
-        key: torch.from_numpy(
-            value if not copy and value.flags.writeable and value.flags.owndata
-            else np.array(value, copy=True)
-        )
-        for key, value in arrays.items()
-    }  # fmt: skip
+def arrays_to_tensors(arrays: Mapping[str, np.ndarray]) -> dict[str, Tensor]:
+    return {key: torch.from_numpy(np.array(value, copy=True)) for key, value in arrays.items()}
 
 
 # ------------------------------------------------------------------ updates
@@ -109,8 +101,7 @@ def update_from_parts(
         actions={
             k: np.asarray(v, np.float32) for k, v in unprefixed(series, ACTION_PREFIX).items()
         },
-        # Fresh arrays from the reply frame: shared, not copied.
-        parameters=None if parameters is None else arrays_to_tensors(parameters, copy=False),
+        parameters=None if parameters is None else arrays_to_tensors(parameters),
         cpu_time_s=float(summary["cpu_time_s"]),
         wall_time_s=float(summary.get("wall_time_s", 0.0)),
     )
