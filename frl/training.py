@@ -20,13 +20,12 @@ from frl import run_directory as rundir
 from frl.agents.precision import precision_report
 from frl.envs.config import traffic_name
 from frl.federation.client_pool import ProcessClientPool
-from frl.federation.coordinator import Coordinator
+from frl.federation.coordinator import run_logged
 from frl.federation.strategies import ServerStrategy
 from frl.federation.tensorboard import (
     EPISODE_WINDOW,
     TrainingLogger,
     mean_over_clients,
-    resume_purge_step,
 )
 from frl.federation.workers import ClientFailure
 from frl.fileio import read_json, write_json_atomic
@@ -144,33 +143,24 @@ def train_rounds(
         from frl.flower.launch import train_rounds as flower_rounds
 
         return flower_rounds(settings, specs, run_dir, state, progress, on_round_end)
-    tb_dir = run_dir / rundir.TB_DIR
     workers = settings.worker_processes()
-    with (
-        TrainingLogger(
-            tb_dir,
-            purge_step=resume_purge_step(tb_dir, state.steps_per_client),
-            tasks=settings.plan.client_tasks,
-        ) as logger,
-        ProcessClientPool(
-            specs,
-            num_threads=settings.worker_threads(workers),
-            timeout_s=settings.worker_timeout_s,
-            state_dir=run_dir,
-            num_workers=workers,
-        ) as pool,
-    ):
-        coordinator = Coordinator(
+    with ProcessClientPool(
+        specs,
+        num_threads=settings.worker_threads(workers),
+        timeout_s=settings.worker_timeout_s,
+        state_dir=run_dir,
+        num_workers=workers,
+    ) as pool:
+        return run_logged(
             settings.plan,
             pool,
             run_dir,
-            logger,
+            state,
+            ServerStrategy(settings.strategy),
+            settings.seed,
             progress,
             on_round_end,
-            seed=settings.seed,
-            strategy=ServerStrategy(settings.strategy),
         )
-        return coordinator.run(state)
 
 
 def traffic_label(scenario: Any) -> str:

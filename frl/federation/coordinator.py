@@ -34,8 +34,8 @@ from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool
 from frl.federation.fedavg import state_nbytes
 from frl.federation.plan import FederationPlan, round_sample
-from frl.federation.strategies import ServerStrategy, StrategySpec
-from frl.federation.tensorboard import EPISODE_WINDOW, TrainingLogger
+from frl.federation.strategies import Aggregator, ServerStrategy, StrategySpec
+from frl.federation.tensorboard import EPISODE_WINDOW, TrainingLogger, resume_purge_step
 from frl.fileio import write_json_atomic
 from frl.run_directory import RoundHook, RunState
 
@@ -64,7 +64,7 @@ class Coordinator:
         progress: bool = False,
         on_round_end: RoundHook | None = None,
         seed: int = 0,
-        strategy: ServerStrategy | None = None,
+        strategy: Aggregator | None = None,
     ) -> None:
         self.plan = plan
         self.clients = clients
@@ -73,7 +73,7 @@ class Coordinator:
         self.progress = progress
         self.on_round_end = on_round_end
         self.seed = seed
-        self.strategy = strategy or ServerStrategy(StrategySpec())
+        self.strategy: Aggregator = strategy or ServerStrategy(StrategySpec())
         self.global_model: dict[str, Any] | None = None
         """The roadside unit's copy of the global model, kept where a strategy steps
         from it or where vehicles left out of a round fetch it later."""
@@ -190,8 +190,8 @@ class Coordinator:
         """The vehicles (indices into ``clients.names``) that train this round; None: all."""
         if not self.plan.samples:
             return None
-        live = range(len(self.clients.names))
-        return round_sample(self.seed, round_index, live, min(self.plan.vehicles_drawn, len(live)))
+        live = range(len(self.clients.names))  # a dropped vehicle is drawn no more
+        return round_sample(self.seed, round_index, live, self.plan.vehicles_drawn)
 
     def _aggregate(
         self, updates: list[LocalUpdate], state: RunState, server_round: int, broadcast: bool
@@ -294,6 +294,30 @@ class Coordinator:
             paths = [models / f"{name}.pt" for name in names]
         self.clients.save_models(paths)
         write_json_atomic(models / rundir.MODEL_INDEX_FILE, self.plan.model_files(list(names)))
+
+
+def run_logged(
+    plan: FederationPlan,
+    clients: ClientPool,
+    run_dir: Path,
+    state: RunState,
+    strategy: Aggregator,
+    seed: int,
+    progress: bool = False,
+    on_round_end: RoundHook | None = None,
+) -> RunState:
+    """The rounds from ``state`` to the end, logged to the run's TensorBoard directory
+    (a resumed run's events past its last commit dropped); whatever carries the messages."""
+    tb_dir = run_dir / rundir.TB_DIR
+    with TrainingLogger(
+        tb_dir,
+        purge_step=resume_purge_step(tb_dir, state.steps_per_client),
+        tasks=plan.client_tasks,
+    ) as logger:
+        coordinator = Coordinator(
+            plan, clients, run_dir, logger, progress, on_round_end, seed=seed, strategy=strategy
+        )
+        return coordinator.run(state)
 
 
 def _count_episodes(state: RunState, updates: list[LocalUpdate]) -> None:

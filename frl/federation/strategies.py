@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 from torch import Tensor
@@ -48,6 +48,18 @@ STRATEGY_PARAMETERS: dict[str, dict[str, float]] = {
     "fedtrimmedavg": {"beta": 0.2},
 }
 """Each strategy's parameters and their defaults (Flower's)."""
+
+PARAMETER_RANGES: dict[str, tuple[Any, str]] = {
+    "proximal_mu": (lambda v: v >= 0, ">= 0"),
+    "server_learning_rate": (lambda v: v > 0, "> 0"),
+    "server_momentum": (lambda v: 0 <= v < 1, "in [0, 1)"),
+    "eta": (lambda v: v > 0, "> 0"),
+    "beta_1": (lambda v: 0 <= v < 1, "in [0, 1)"),
+    "beta_2": (lambda v: 0 <= v < 1, "in [0, 1)"),
+    "tau": (lambda v: v > 0, "> 0"),
+    "beta": (lambda v: 0 <= v < 0.5, "in [0, 0.5)"),
+}
+"""The valid values of each parameter that has bounds (predicate, as said in the error)."""
 
 STRATEGIES: tuple[str, ...] = tuple(STRATEGY_PARAMETERS)
 SERVER_OPTIMIZERS: tuple[str, ...] = ("fedavgm", "fedadam", "fedyogi", "fedadagrad")
@@ -80,26 +92,10 @@ class StrategySpec:
                     f"federation.strategy_params.{key} must be a number, got {value!r}"
                 )
         resolved = {**allowed, **{k: float(v) for k, v in dict(self.params).items()}}
-        checks = {
-            "proximal_mu": resolved.get("proximal_mu", 0.0) >= 0,
-            "server_learning_rate": resolved.get("server_learning_rate", 1.0) > 0,
-            "server_momentum": 0 <= resolved.get("server_momentum", 0.0) < 1,
-            "eta": resolved.get("eta", 1.0) > 0,
-            "beta_1": 0 <= resolved.get("beta_1", 0.0) < 1,
-            "beta_2": 0 <= resolved.get("beta_2", 0.0) < 1,
-            "tau": resolved.get("tau", 1.0) > 0,
-            "beta": 0 <= resolved.get("beta", 0.0) < 0.5,
-        }
-        bad = next((key for key, ok in checks.items() if not ok and key in resolved), None)
-        if bad is not None:
-            ranges = {
-                "proximal_mu": ">= 0", "server_learning_rate": "> 0",
-                "server_momentum": "in [0, 1)", "eta": "> 0", "beta_1": "in [0, 1)",
-                "beta_2": "in [0, 1)", "tau": "> 0", "beta": "in [0, 0.5)",
-            }  # fmt: skip
-            raise ValueError(
-                f"federation.strategy_params.{bad} must be {ranges[bad]}, got {resolved[bad]!r}"
-            )
+        for key, value in resolved.items():
+            within, text = PARAMETER_RANGES.get(key, (lambda _: True, ""))
+            if not within(value):
+                raise ValueError(f"federation.strategy_params.{key} must be {text}, got {value!r}")
         object.__setattr__(self, "params", resolved)
 
     @property
@@ -111,6 +107,28 @@ class StrategySpec:
     def proximal_mu(self) -> float:
         """The vehicles' proximal weight (FedProx); 0 for every other strategy."""
         return float(self.params.get("proximal_mu", 0.0))
+
+
+class Aggregator(Protocol):
+    """What the roadside unit needs of a strategy: :class:`ServerStrategy`, or Flower's
+    classes behind :class:`frl.flower.strategies.FlowerServerStrategy`."""
+
+    spec: StrategySpec
+
+    def aggregate(
+        self,
+        uploads: Sequence[Mapping[str, Tensor]],
+        weights: Sequence[float] | None,
+        current: Mapping[str, Tensor] | None,
+        server_round: int,
+    ) -> dict[str, Tensor]:
+        """The next global model from the round's uploads."""
+
+    def state_dict(self) -> dict[str, Tensor]:
+        """The state carried from round to round, as flat tensors."""
+
+    def load_state_dict(self, flat: Mapping[str, Tensor]) -> None:
+        """Restore :meth:`state_dict`."""
 
 
 class ServerStrategy:

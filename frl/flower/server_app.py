@@ -20,8 +20,7 @@ from flwr.serverapp import Grid, ServerApp
 
 from frl import run_directory as rundir
 from frl.federation.client import ClientSpec
-from frl.federation.coordinator import Coordinator
-from frl.federation.tensorboard import TrainingLogger, resume_purge_step
+from frl.federation.coordinator import run_logged
 from frl.fileio import write_json_atomic
 from frl.flower.grid_pool import FlowerClientPool
 from frl.flower.messages import RUN_DIR_KEY
@@ -54,23 +53,16 @@ def run_roadside_unit(
         dropped=state.dropped_clients,
     )
     pool.connect()
-    tb_dir = run_dir / rundir.TB_DIR
-    with TrainingLogger(
-        tb_dir,
-        purge_step=resume_purge_step(tb_dir, state.steps_per_client),
-        tasks=settings.plan.client_tasks,
-    ) as logger:
-        coordinator = Coordinator(
-            settings.plan,
-            pool,
-            run_dir,
-            logger,
-            progress,
-            on_round_end,
-            seed=settings.seed,
-            strategy=FlowerServerStrategy(settings.strategy),
-        )
-        return coordinator.run(state)
+    return run_logged(
+        settings.plan,
+        pool,
+        run_dir,
+        state,
+        FlowerServerStrategy(settings.strategy),
+        settings.seed,
+        progress,
+        on_round_end,
+    )
 
 
 def serve_run_dir(grid: Any, run_dir: str) -> None:
