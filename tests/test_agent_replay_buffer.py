@@ -1,6 +1,9 @@
 """Replay buffer: ring semantics, batch shapes, exact compact storage, stored flags."""
 
 import itertools
+import subprocess
+import sys
+import textwrap
 
 import numpy as np
 import pytest
@@ -90,6 +93,52 @@ def test_compact_rows_widen_instead_of_truncating() -> None:
     assert buffer._obs.width >= 90
     batch = buffer.gather(np.array([0, 1]))
     assert torch.equal(batch.obs, torch.from_numpy(np.stack([small, crowded]).reshape(2, -1)))
+
+
+def test_widening_a_wrapped_buffer_keeps_every_row() -> None:
+    rng = np.random.default_rng(6)
+    buffer = ReplayBuffer(6, GRID, 1, np.random.default_rng(7), sparse=True, sparse_width=8)
+    added = [sparse_grid(rng, int(n)) for n in rng.integers(0, 3, 9)]  # up to 6 non-zeros
+    added.append(sparse_grid(rng, 12))  # 36 non-zeros: widens after the ring wrapped
+    for observation in added:
+        buffer.add(observation, np.zeros(1), 0.0, observation, False)
+    kept = added[-6:]
+    slots = (np.arange(6) + 10) % 6  # slot of added[4 + i]
+    batch = buffer.gather(slots)
+    assert torch.equal(batch.obs, torch.from_numpy(np.stack(kept).reshape(6, -1)))
+
+
+LINUX_ONLY = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+
+
+@LINUX_ONLY
+def test_storage_takes_memory_only_as_rows_are_written() -> None:
+    # In a process set up as a vehicle worker (glibc keeps freed memory for reuse), a
+    # buffer sized for the paper's 100,000 transitions must not hold its 77 MB up front.
+    probe = textwrap.dedent(
+        """
+        import numpy as np
+        from frl.agents import ReplayBuffer
+        from frl.federation.workers import retain_freed_memory
+
+        def anon_mb():
+            for line in open("/proc/self/status"):
+                if line.startswith("RssAnon"):
+                    return int(line.split()[1]) / 1024
+
+        retain_freed_memory()
+        before = anon_mb()
+        buffer = ReplayBuffer(100_000, (26, 18, 3), 1, np.random.default_rng(0), sparse=True)
+        grid = np.zeros((26, 18, 3), np.float32)
+        grid[3, 4] = 1.0
+        for _ in range(1000):
+            buffer.add(grid, np.zeros(1), 0.0, grid, False)
+        print(anon_mb() - before)
+        """
+    )
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert float(result.stdout) < 10.0, f"{float(result.stdout):.0f} MB for 1,000 transitions"
 
 
 def test_all_zero_observation_round_trips() -> None:

@@ -5,9 +5,10 @@ storage keeps, per observation, its non-zero float32 values and their flat posit
 when the observation has at most 32767 features) in a fixed-width row of ``capacity_nnz``
 slots. Storage is exact: values are kept as float32, the dtype the networks consume. When an
 observation has more non-zeros than the row width, every row is widened (copied into larger
-arrays) rather than truncated, so memory is ``2 * buffer_size * capacity_nnz * 6`` bytes
-plus the scalars: 77 MB for the paper's 100,000 transitions at the default width 64 (up to
-21 vehicles x 3 channels), against 1.1 GB for dense float32 observations.
+arrays) rather than truncated, so a full buffer holds ``2 * buffer_size * capacity_nnz * 6``
+bytes plus the scalars: 77 MB for the paper's 100,000 transitions at the default width 64 (up
+to 21 vehicles x 3 channels), against 1.1 GB for dense float32 observations. The storage takes
+memory only as rows are written (about 0.8 MB per 1,000 transitions).
 
 ``terminated`` is stored as given. Pass ``terminated`` (not ``terminated or truncated``)
 so that time-limit cut-offs still bootstrap from the next observation.
@@ -15,6 +16,7 @@ so that time-limit cut-offs still bootstrap from the next observation.
 
 from __future__ import annotations
 
+import mmap
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -37,15 +39,32 @@ class Batch(NamedTuple):
     """Steps from ``obs`` to ``next_obs`` (n-step transitions; 1 for one-step ones)."""
 
 
+def committed_when_written(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+    """Zeros in an anonymous memory map, whose pages take memory only once written.
+
+    ``np.zeros`` of a large block costs no memory until written only while malloc serves it
+    with ``mmap``; a vehicle process raises glibc's mmap threshold to 32 MB
+    (:func:`frl.federation.workers.retain_freed_memory`), and calloc then serves it from the
+    heap and clears it, touching every page: a buffer sized for the paper's 100,000
+    transitions would hold about 65 MB per vehicle from the start, when a 10,000-step run
+    writes 8 MB of it.
+    """
+    dtype = np.dtype(dtype)
+    count = int(np.prod(shape, dtype=np.int64))
+    if count == 0:
+        return np.zeros(shape, dtype=dtype)
+    return np.frombuffer(mmap.mmap(-1, count * dtype.itemsize), dtype, count).reshape(shape)
+
+
 class _SparseStore:
     """Fixed-width compressed rows: ``values[i, :count[i]]`` at ``indices[i, :count[i]]``."""
 
     def __init__(self, capacity: int, num_features: int, width: int) -> None:
         self.num_features = num_features
         self.index_dtype = np.int16 if num_features <= np.iinfo(np.int16).max else np.int32
-        self.counts = np.zeros(capacity, dtype=np.int32)
-        self.indices = np.zeros((capacity, width), dtype=self.index_dtype)
-        self.values = np.zeros((capacity, width), dtype=np.float32)
+        self.counts = committed_when_written((capacity,), np.int32)
+        self.indices = committed_when_written((capacity, width), self.index_dtype)
+        self.values = committed_when_written((capacity, width), np.float32)
 
     @property
     def width(self) -> int:
@@ -57,9 +76,14 @@ class _SparseStore:
 
     def _widen(self, needed: int) -> None:
         width = max(needed, 2 * self.width)
-        pad = ((0, 0), (0, width - self.width))
-        self.indices = np.pad(self.indices, pad)
-        self.values = np.pad(self.values, pad)
+        indices = committed_when_written((len(self.counts), width), self.index_dtype)
+        values = committed_when_written((len(self.counts), width), np.float32)
+        # Rows never written hold zeros and a count of 0: copying only the others keeps the
+        # untouched part of the capacity free.
+        written = np.flatnonzero(self.counts)
+        indices[written, : self.width] = self.indices[written]
+        values[written, : self.width] = self.values[written]
+        self.indices, self.values = indices, values
 
     def put(self, slot: int, flat: np.ndarray) -> None:
         nz = np.flatnonzero(flat)
@@ -145,11 +169,11 @@ class ReplayBuffer:
             self._obs: Any = _SparseStore(capacity, self.num_features, sparse_width)
             self._next_obs: Any = _SparseStore(capacity, self.num_features, sparse_width)
         else:
-            self._obs = np.zeros((capacity, self.num_features), dtype=np.float32)
-            self._next_obs = np.zeros((capacity, self.num_features), dtype=np.float32)
-        self.actions = np.zeros((capacity, action_dim), dtype=np.float32)
-        self.rewards = np.zeros(capacity, dtype=np.float32)
-        self.terminated = np.zeros(capacity, dtype=np.float32)
+            self._obs = committed_when_written((capacity, self.num_features), np.float32)
+            self._next_obs = committed_when_written((capacity, self.num_features), np.float32)
+        self.actions = committed_when_written((capacity, action_dim), np.float32)
+        self.rewards = committed_when_written((capacity,), np.float32)
+        self.terminated = committed_when_written((capacity,), np.float32)
         self.horizons = np.ones(capacity, dtype=np.float32)
         self.pos = 0
         self.size = 0
