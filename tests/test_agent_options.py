@@ -228,6 +228,7 @@ def test_a_rule_driven_warm_up_follows_the_rule_with_perturbations():
         ("terminal_fraction", 1.0),
         ("policy_delay", 0),
         ("target_noise", -0.1),
+        ("critic_layer_norm", "yes"),
     ],
 )
 def test_bad_option_values_fail_clearly(field, value):
@@ -360,3 +361,44 @@ def test_inverting_gradients_scale_dq_da_by_the_room_left_and_turn_round_past_a_
         actions = agent.actor(batch.obs)
         p = agent.actor.preactivation(batch.obs)
     assert torch.all(actions < -0.9) and torch.all(p > -1.2)
+
+
+def test_a_layer_norm_critic_normalises_every_hidden_layer_and_leaves_the_actor_alone():
+    config = td3(hidden_sizes=(16, 8), critic_layer_norm=True, twin_critics=True)
+    agent = DDPG(GRID, ACCEL, config, seed=10)
+    state = agent.federated_state()
+    for critic in ("critic", "critic_target", "critic2", "critic2_target"):
+        assert torch.equal(state[f"{critic}.norms.0.weight"], torch.ones(16))
+        assert torch.equal(state[f"{critic}.norms.1.bias"], torch.zeros(8))
+    assert not any(".norms." in key for key in state if key.startswith("actor"))
+    plain = DDPG(GRID, ACCEL, td3(hidden_sizes=(16, 8)), seed=10)
+    assert not any(".norms." in key for key in plain.federated_state())
+    # The same initial weights; only the normalisation differs.
+    assert torch.equal(state["critic.layers.1.weight"], plain.critic.layers[1].weight)
+    seen: list[torch.Tensor] = []
+    norm = agent.critic.norms[1]
+    handle = norm.register_forward_hook(lambda module, args, output: seen.append(output.clone()))
+    obs = torch.from_numpy(np.random.default_rng(0).uniform(0, 1, (5, *GRID.shape)))
+    with torch.no_grad():
+        agent.critic(obs.reshape(5, -1).float(), torch.zeros(5, 1))
+    handle.remove()
+    (hidden,) = seen
+    assert hidden.mean(dim=1).abs().max() < 1e-5
+    assert hidden.std(dim=1, unbiased=False) == pytest.approx(torch.ones(5), abs=1e-3)
+    feed(agent, 8)  # the norms learn like every other critic weight
+    assert not torch.equal(agent.critic.norms[0].weight, torch.ones(16))
+
+
+def test_a_layer_norm_critic_resumes_exactly_and_old_checkpoints_load_without_it(tmp_path: Path):
+    agent = DDPG(GRID, ACCEL, td3(critic_layer_norm=True), seed=11)
+    feed(agent, 10)
+    agent.save(tmp_path / "ln.pt", include_buffer=True)
+    restored = DDPG.from_checkpoint(tmp_path / "ln.pt", GRID, ACCEL)
+    assert restored.config.critic_layer_norm
+    assert feed(agent, 6, seed=1) == feed(restored, 6, seed=1)
+    plain = DDPG(GRID, ACCEL, td3(), seed=11)
+    plain.save(tmp_path / "old.pt")
+    data = torch.load(tmp_path / "old.pt", weights_only=True)
+    del data["config"]["critic_layer_norm"]
+    torch.save(data, tmp_path / "old.pt")
+    assert not DDPG.from_checkpoint(tmp_path / "old.pt", GRID, ACCEL).config.critic_layer_norm

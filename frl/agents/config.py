@@ -29,6 +29,7 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "terminal_fraction": 0.0,
     "explore_hold_probability": 0.0,
     "actor_update": "tanh",
+    "critic_layer_norm": False,
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -134,6 +135,11 @@ class DDPGConfig:
     left towards the bound it points to, and reversed past it. Through a saturated tanh
     almost no gradient passes, so an actor stuck at full throttle cannot learn to brake
     where its critic has learned that it should."""
+    critic_layer_norm: bool = False
+    """LayerNorm before every hidden ReLU of the critic(s) (Ba et al. 2016; as RLPD and
+    CrossQ use it): the hidden activations keep unit scale whatever the inputs, so a
+    critic whose inputs are a few sparse non-zeros starts at a useful scale and its
+    targets, which it chases, cannot blow up its features. The actor is unchanged."""
     preactivation_l2: float = 0.0
     """Weight of the mean squared pre-tanh output in the actor loss: keeps the actor off
     tanh's flat tails, where no gradient can bring a saturated action back."""
@@ -225,6 +231,10 @@ class DDPGConfig:
         _require(
             self.target_noise_clip > 0,
             f"target_noise_clip must be positive, got {self.target_noise_clip}",
+        )
+        _require(
+            isinstance(self.critic_layer_norm, bool),
+            f"critic_layer_norm must be true or false, got {self.critic_layer_norm!r}",
         )
         _require(
             isinstance(self.twin_critics, bool),

@@ -216,19 +216,22 @@ class DDPG:
         global torch RNG; then materialised and initialised from ``init_gen`` only.
         """
         cfg = self.config
-        clipped = kind is Actor and cfg.actor_update == "inverting_gradients"
+        options: dict[str, Any] = {}
+        if kind is Actor and cfg.actor_update == "inverting_gradients":
+            options["output"] = "clip"
+        if kind is Critic and cfg.critic_layer_norm:
+            options["layer_norm"] = True
         with torch.device("meta"):
             network = kind(
-                self.obs_dim,
-                self.action_dim,
-                cfg.hidden_sizes,
-                self._encoder(),
-                **({"output": "clip"} if clipped else {}),
+                self.obs_dim, self.action_dim, cfg.hidden_sizes, self._encoder(), **options
             )
         network = network.to_empty(device="cpu")
         if network.encoder is not None:
             network.encoder.reset_parameters(init_gen)
         init_mlp_(network.layers, init_gen)
+        for module in network.modules():
+            if isinstance(module, nn.LayerNorm):
+                module.reset_parameters()  # ones and zeros: draws nothing
         return network.to(self.device)
 
     def _encoder(self) -> VehicleSetEncoder | None:

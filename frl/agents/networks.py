@@ -91,7 +91,8 @@ class Critic(nn.Module):
 
     The action joins the observation (or the encoder's output) at the first layer
     (``layers.0.extra_weight``), which computes ``Linear(in + action_dim, h0)`` on
-    ``cat([x, action])``.
+    ``cat([x, action])``. With ``layer_norm`` each hidden layer's output is normalised
+    (``norms.i``) before its ReLU.
     """
 
     def __init__(
@@ -100,17 +101,26 @@ class Critic(nn.Module):
         action_dim: int,
         hidden_sizes: Sequence[int],
         encoder: nn.Module | None = None,
+        layer_norm: bool = False,
     ) -> None:
         super().__init__()
         self.encoder = encoder
         in_features = obs_dim if encoder is None else encoder.out_features
         first = InputLinear(in_features, hidden_sizes[0], extra_features=action_dim)
         self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, 1))
+        self.norms = (
+            nn.ModuleList(nn.LayerNorm(width) for width in hidden_sizes) if layer_norm else None
+        )
 
     def forward(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
         """Q-values, float32 (also under autocast)."""
         x = obs if self.encoder is None else self.encoder(obs)
-        x = torch.relu_(self.layers[0](x, action))
-        for layer in self.layers[1:-1]:
-            x = torch.relu_(layer(x))  # in place: addmm's backward needs only its inputs
+        x = self.layers[0](x, action)
+        for index, layer in enumerate(self.layers[1:-1], start=1):
+            x = torch.relu_(self._normalised(index - 1, x))
+            x = layer(x)
+        x = torch.relu_(self._normalised(len(self.layers) - 2, x))
         return float32_layer(self.layers[-1], x).squeeze(-1)
+
+    def _normalised(self, index: int, x: Tensor) -> Tensor:
+        return x if self.norms is None else self.norms[index](x)
