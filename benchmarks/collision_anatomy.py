@@ -33,9 +33,10 @@ import torch
 from frl import run_directory as rundir
 from frl.agents import DDPG
 from frl.envs import TASKS, IntersectionEnv
+from frl.episodes import run_episode
+from frl.evaluate import run_settings
 from frl.federation.plan import evaluation_seeds
 from frl.policies import GapAcceptancePolicy
-from frl.train_config import load_run_config, validate
 
 
 @dataclass
@@ -94,18 +95,10 @@ def drive_model(
     return True
 
 
-def drive_rule(env: IntersectionEnv, rule: GapAcceptancePolicy, task: str, seed: int) -> bool:
-    observation, _ = env.reset(seed=seed, options={"task": task})
-    while True:
-        observation, _, terminated, truncated, info = env.step(rule(observation))
-        if terminated or truncated:
-            return bool(info["collision"])
-
-
 def anatomy_of(
     run_dir: Path, tasks: list[str], episodes: int, window: int
 ) -> dict[str, TaskAnatomy]:
-    settings = validate(load_run_config(run_dir))
+    settings = run_settings(run_dir)
     files = rundir.model_files(run_dir)
     result = {}
     for task in [task for task in tasks if task in files]:
@@ -116,7 +109,7 @@ def anatomy_of(
             anatomy = TaskAnatomy()
             for seed in evaluation_seeds(settings.seed, task, episodes):
                 model_collided = drive_model(env, agent, rule, task, seed, window, anatomy)
-                rule_collided = drive_rule(env, rule, task, seed)
+                rule_collided = run_episode(env, rule, task, seed).collision
                 anatomy.rule_collisions += rule_collided
                 anatomy.rule_collides_too += model_collided and rule_collided
             result[task] = anatomy

@@ -285,7 +285,7 @@ def evaluate_run(
     """Test the run's final model(s) and its yardsticks; merge ``evaluation`` into
     results.json; return it. ``episodes`` overrides the run's ``eval_episodes``."""
     run_dir = Path(run_dir)
-    settings = _run_settings(run_dir)
+    settings = run_settings(run_dir)
     episodes = settings.eval_episodes if episodes is None else int(episodes)
     if episodes <= 0:
         raise ValueError(f"episodes must be positive, got {episodes}")
@@ -354,7 +354,7 @@ def evaluate_yardsticks(
             raise ValueError(
                 "--traffic and --seed come from the run's config when RUN_DIR is given"
             )
-        settings = _run_settings(Path(run_dir))
+        settings = run_settings(Path(run_dir))
     else:
         settings = default_settings(traffic or "paper", 0 if seed is None else seed)
     episodes = (settings.eval_episodes or 100) if episodes is None else int(episodes)
@@ -433,7 +433,9 @@ def _label(name: str) -> str:
     return YARDSTICK_LABELS.get(name, name)
 
 
-def _run_settings(run_dir: Path) -> Any:
+def run_settings(run_dir: Path) -> Any:
+    """A finished run's validated settings, ready to test its model on this machine
+    (``cores`` falls back to every core here when the run was saved on a larger one)."""
     from frl.train_config import load_run_config, validate
 
     config = load_run_config(run_dir)

@@ -115,12 +115,13 @@ class Critic(nn.Module):
     def forward(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
         """Q-values, float32 (also under autocast)."""
         x = obs if self.encoder is None else self.encoder(obs)
-        x = self.layers[0](x, action)
+        x = self._activated(0, self.layers[0](x, action))
         for index, layer in enumerate(self.layers[1:-1], start=1):
-            x = torch.relu_(self._normalised(index - 1, x))
-            x = layer(x)
-        x = torch.relu_(self._normalised(len(self.layers) - 2, x))
+            x = self._activated(index, layer(x))
         return float32_layer(self.layers[-1], x).squeeze(-1)
 
-    def _normalised(self, index: int, x: Tensor) -> Tensor:
-        return x if self.norms is None else self.norms[index](x)
+    def _activated(self, index: int, x: Tensor) -> Tensor:
+        """ReLU of hidden layer ``index``'s output, after its LayerNorm if there is one.
+
+        In place: addmm's and layer_norm's backward passes need only their inputs."""
+        return torch.relu_(x if self.norms is None else self.norms[index](x))
