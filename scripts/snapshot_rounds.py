@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-import yaml
+from omegaconf import OmegaConf
 
 from frl import run_directory as rundir
 
@@ -59,11 +59,11 @@ def copy_round(run_dir: Path, steps: int) -> Path | None:
         shutil.rmtree(partial, ignore_errors=True)
         return None
     rundir.write_state(partial, state)
-    rundir.write_step_rewards(partial, rundir.read_step_rewards(partial)[:steps])
-    config_file = partial / rundir.CONFIG_FILE
-    config = yaml.safe_load(config_file.read_text())
+    rundir.write_step_rewards(partial, rundir.read_step_rewards(partial, steps))
+    # Read and written as frl.train does, so that values keep their types (1e-4 a number).
+    config = rundir.read_saved_config(partial)
     config.update(total_steps=steps, run_dir=str(target.resolve()), resume=False)
-    config_file.write_text(yaml.safe_dump(config, sort_keys=False))
+    OmegaConf.save(OmegaConf.create(config), partial / rundir.CONFIG_FILE)
     shutil.rmtree(target, ignore_errors=True)
     partial.rename(target)
     return target
