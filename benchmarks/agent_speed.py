@@ -13,18 +13,26 @@ frl's figures and says how to add the comparison.
 
     python benchmarks/agent_speed.py [--blocks 16] [--threads N] [--profile]
         [--precisions float32,bf16] [--option n_step=1 ...] [--dense] [--skip-sb3]
+        [--skip-floor]
 
 ``--option KEY=VALUE`` sets a DDPGConfig field of the frl agents (repeatable). frl's
 rows are Table II's agent (``agent=ddpg-paper``: one-step targets, an MLP on the flat
 grid, a tanh actor) at each precision and frl's default agent (``agent=ddpg``: 5-step
 targets, held warm-up actions, the vehicles encoder, inverting gradients) at its default
 precision.
+
+A last row is a lower bound, the eager-PyTorch floor: Table II's update reduced to what
+any eager PyTorch implementation pays (its matmuls through autograd at the precision
+``auto`` picks, the weight casts, fused Adam and the soft update, at full size), without
+replay, acting or the first layer's gather (``--skip-floor`` leaves it out). How far
+frl's Table II row sits above it is the per-operation work left to remove.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
+import itertools
 import sys
 import time
 from collections.abc import Callable
@@ -151,6 +159,109 @@ class FrlLearner(Learner):
         return prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=25)
 
 
+class EagerFloor(Learner):
+    """The part of a Table II update that any eager-PyTorch DDPG pays: a lower bound.
+
+    Per step, on a float32 actor and critic of Table II's sizes (1,404 inputs, the
+    hidden layers, one output): the hidden layers' matmuls in ``dtype`` through autograd
+    (target actor and critic forward; critic forward and backward; actor forward, critic
+    forward and backward to its input, actor backward); under bf16 also the weight casts
+    autocast makes (target actor, target critic, the critic for its update and again
+    for the actor's, the actor) and the gradients copied back to float32; fused Adam on
+    the whole actor and critic; the soft update of both targets. The first layer's
+    output is a ready-made batch (no gather, so the first layer gets no gradient, though
+    Adam and the soft update cover it), the action enters the critic added to it, and
+    there is no replay, acting or loss beyond a mean.
+    """
+
+    def __init__(self, config: DDPGConfig, dtype: torch.dtype) -> None:
+        name = "bf16" if dtype == torch.bfloat16 else "float32"
+        self.label = f"eager PyTorch floor, Table II update, {name}"
+        self.dtype = dtype
+        generator = torch.Generator().manual_seed(0)
+        sizes = (int(np.prod(GRID_SHAPE)), *config.hidden_sizes, 1)
+
+        def network() -> list[torch.Tensor]:
+            weights = [
+                torch.empty(fan_out, fan_in).uniform_(-1e-2, 1e-2, generator=generator)
+                for fan_in, fan_out in itertools.pairwise(sizes)
+            ]
+            return weights + [torch.zeros(fan_out) for fan_out in sizes[1:]]
+
+        self.actor, self.critic = network(), network()
+        self.actor_target = [p.clone() for p in self.actor]
+        self.critic_target = [p.clone() for p in self.critic]
+        for param in self.actor + self.critic:
+            # float32 trains the weights themselves; bf16 copies its gradients into these.
+            param.requires_grad_(dtype == torch.float32)
+            param.grad = torch.zeros_like(param)
+        self.actor_optimizer = torch.optim.Adam(self.actor, lr=config.actor_lr, fused=True)
+        self.critic_optimizer = torch.optim.Adam(self.critic, lr=config.critic_lr, fused=True)
+        self.tau = config.tau
+        shape = (config.batch_size, config.hidden_sizes[0])
+        self.first = torch.randn(shape, generator=generator).to(dtype)
+        self.next_first = torch.randn(shape, generator=generator).to(dtype)
+        self.actions = torch.rand((config.batch_size, 1), generator=generator).to(dtype)
+
+    @staticmethod
+    def _hidden(params: list[torch.Tensor], first: torch.Tensor) -> torch.Tensor:
+        """The layers after the first, from the first layer's output."""
+        layers = len(params) // 2
+        x = torch.relu(first)
+        for index in range(1, layers):
+            x = torch.addmm(params[layers + index], x, params[index].t())
+            if index < layers - 1:
+                x = torch.relu_(x)
+        return x.float()
+
+    def _cast(self, params: list[torch.Tensor], trainable: bool = False) -> list[torch.Tensor]:
+        """The weights the matmuls read: bf16 copies (as autocast makes), or themselves."""
+        if self.dtype == torch.float32:
+            return params if trainable else [p.detach() for p in params]
+        return [p.to(self.dtype).requires_grad_(trainable) for p in params]
+
+    def _zero_float32_gradients(self, optimizer: torch.optim.Optimizer) -> None:
+        """float32 accumulates into the weights' gradients; bf16 overwrites them."""
+        if self.dtype == torch.float32:
+            optimizer.zero_grad(set_to_none=False)
+
+    @staticmethod
+    def _gradients_to(params: list[torch.Tensor], copies: list[torch.Tensor]) -> None:
+        if copies is params:  # float32: the gradients are already there
+            return
+        used = [(p.grad, c.grad) for p, c in zip(params, copies, strict=True) if c.grad is not None]
+        torch._foreach_copy_([grad for grad, _ in used], [copy for _, copy in used])
+
+    def step(self) -> None:
+        with torch.no_grad():
+            actor_target = self._cast(self.actor_target)
+            critic_target = self._cast(self.critic_target)
+            next_action = self._hidden(actor_target, self.next_first).to(self.dtype)
+            next_q = self._hidden(critic_target, self.next_first + next_action)
+        critic = self._cast(self.critic, trainable=True)
+        self._zero_float32_gradients(self.critic_optimizer)
+        q = self._hidden(critic, self.first + self.actions)
+        (q - next_q).square().mean().backward()
+        self._gradients_to(self.critic, critic)
+        self.critic_optimizer.step()
+        actor = self._cast(self.actor, trainable=True)
+        self._zero_float32_gradients(self.actor_optimizer)
+        critic_now = self._cast(self.critic)
+        action = self._hidden(actor, self.first).to(self.dtype)
+        (-self._hidden(critic_now, self.first + action).mean()).backward()
+        self._gradients_to(self.actor, actor)
+        self.actor_optimizer.step()
+        with torch.no_grad():
+            torch._foreach_lerp_(self.actor_target, self.actor, self.tau)
+            torch._foreach_lerp_(self.critic_target, self.critic, self.tau)
+
+    def block(self) -> float:
+        started = time.perf_counter()
+        for _ in range(BLOCK):
+            self.step()
+        return (time.perf_counter() - started) / BLOCK * 1e3
+
+
 class StableBaselines3Learner(Learner):
     """Stable-Baselines3's DDPG at Table II's settings on the same scenes. A step is its
     collect (predict, env step, buffer add) and train (one gradient step), timed between
@@ -252,6 +363,7 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true", help="torch profile of frl's steps")
     parser.add_argument("--dense", action="store_true", help="also a dense first layer")
     parser.add_argument("--skip-sb3", action="store_true")
+    parser.add_argument("--skip-floor", action="store_true", help="no eager-PyTorch floor")
     parser.add_argument("--skip-buffer", action="store_true")
     parser.add_argument(
         "--option", action="append", default=[], metavar="KEY=VALUE", help="a DDPGConfig field"
@@ -297,6 +409,10 @@ def main() -> None:
     if args.dense:
         dense = config(**{**TABLE_II, **options, "sparse_input": False})
         learners.append(FrlLearner("frl, Table II agent, dense first layer", dense, scenes))
+    if not args.skip_floor:
+        bf16 = resolve_precision("auto", "cpu") == "bf16"
+        floor_dtype = torch.bfloat16 if bf16 else torch.float32
+        learners.append(EagerFloor(config(**{**TABLE_II, **options}), floor_dtype))
     if with_sb3:
         learners.append(StableBaselines3Learner(scenes))
     if args.profile:
