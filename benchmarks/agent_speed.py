@@ -165,9 +165,10 @@ class EagerFloor(Learner):
     Per step, on a float32 actor and critic of Table II's sizes (1,404 inputs, the
     hidden layers, one output): the hidden layers' matmuls in ``dtype`` through autograd
     (target actor and critic forward; critic forward and backward; actor forward, critic
-    forward and backward to its input, actor backward); under bf16 also the weight casts
-    autocast makes (target actor, target critic, the critic for its update and again
-    for the actor's, the actor) and the gradients copied back to float32; fused Adam on
+    forward and backward to its input, actor backward); under bf16 also the casts of
+    those layers' weights that autocast makes (target actor, target critic, the critic
+    for its update and again for the actor's, the actor) and their gradients copied
+    back to float32; fused Adam on
     the whole actor and critic; the soft update of both targets. The first layer's
     output is a ready-made batch (no gather, so the first layer gets no gradient, though
     Adam and the soft update cover it), the action enters the critic added to it, and
@@ -215,10 +216,15 @@ class EagerFloor(Learner):
         return x.float()
 
     def _cast(self, params: list[torch.Tensor], trainable: bool = False) -> list[torch.Tensor]:
-        """The weights the matmuls read: bf16 copies (as autocast makes), or themselves."""
+        """The weights the matmuls read: bf16 copies (as autocast makes), or themselves.
+        The first layer, which these matmuls never read, is left as it is."""
         if self.dtype == torch.float32:
             return params if trainable else [p.detach() for p in params]
-        return [p.to(self.dtype).requires_grad_(trainable) for p in params]
+        first = {0, len(params) // 2}
+        return [
+            p if index in first else p.to(self.dtype).requires_grad_(trainable)
+            for index, p in enumerate(params)
+        ]
 
     def _zero_float32_gradients(self, optimizer: torch.optim.Optimizer) -> None:
         """float32 accumulates into the weights' gradients; bf16 overwrites them."""
@@ -229,7 +235,8 @@ class EagerFloor(Learner):
     def _gradients_to(params: list[torch.Tensor], copies: list[torch.Tensor]) -> None:
         if copies is params:  # float32: the gradients are already there
             return
-        used = [(p.grad, c.grad) for p, c in zip(params, copies, strict=True) if c.grad is not None]
+        pairs = zip(params, copies, strict=True)
+        used = [(p.grad, c.grad) for p, c in pairs if c is not p and c.grad is not None]
         torch._foreach_copy_([grad for grad, _ in used], [copy for _, copy in used])
 
     def step(self) -> None:
