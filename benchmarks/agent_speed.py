@@ -168,11 +168,10 @@ class EagerFloor(Learner):
     forward and backward to its input, actor backward); under bf16 also the casts of
     those layers' weights that autocast makes (target actor, target critic, the critic
     for its update and again for the actor's, the actor) and their gradients copied
-    back to float32; fused Adam on
-    the whole actor and critic; the soft update of both targets. The first layer's
-    output is a ready-made batch (no gather, so the first layer gets no gradient, though
-    Adam and the soft update cover it), the action enters the critic added to it, and
-    there is no replay, acting or loss beyond a mean.
+    back to float32; fused Adam on the whole actor and critic; the soft update of both
+    targets. The first layer's output is a ready-made batch (no gather, so the first
+    layer gets no gradient, though Adam and the soft update cover it), the action enters
+    the critic added to it, and there is no replay, acting or loss beyond a mean.
     """
 
     def __init__(self, config: DDPGConfig, dtype: torch.dtype) -> None:
