@@ -45,6 +45,7 @@ from gymnasium import spaces
 from omegaconf import OmegaConf
 
 from frl.agents import DDPG, DDPGConfig, ReplayBuffer
+from frl.agents.functional import soft_update
 from frl.agents.precision import has_native_bf16, resolve_precision
 from frl.envs import TASKS, IntersectionEnv
 
@@ -116,9 +117,16 @@ class Learner:
 
     label: str
 
+    def step(self) -> None:
+        """One training step."""
+        raise NotImplementedError
+
     def block(self) -> float:
         """Run one block; milliseconds per training step."""
-        raise NotImplementedError
+        started = time.perf_counter()
+        for _ in range(BLOCK):
+            self.step()
+        return (time.perf_counter() - started) / BLOCK * 1e3
 
 
 class FrlLearner(Learner):
@@ -143,12 +151,6 @@ class FrlLearner(Learner):
         self.obs = next_obs
         if terminated:
             agent.episode_start()
-
-    def block(self) -> float:
-        started = time.perf_counter()
-        for _ in range(BLOCK):
-            self.step()
-        return (time.perf_counter() - started) / BLOCK * 1e3
 
     def profile(self) -> str:
         from torch.profiler import ProfilerActivity, profile
@@ -257,15 +259,7 @@ class EagerFloor(Learner):
         (-self._hidden(critic_now, self.first + action).mean()).backward()
         self._gradients_to(self.actor, actor)
         self.actor_optimizer.step()
-        with torch.no_grad():
-            torch._foreach_lerp_(self.actor_target, self.actor, self.tau)
-            torch._foreach_lerp_(self.critic_target, self.critic, self.tau)
-
-    def block(self) -> float:
-        started = time.perf_counter()
-        for _ in range(BLOCK):
-            self.step()
-        return (time.perf_counter() - started) / BLOCK * 1e3
+        soft_update(self.actor_target + self.critic_target, self.actor + self.critic, self.tau)
 
 
 class StableBaselines3Learner(Learner):
