@@ -41,7 +41,7 @@ from frl.episodes import (
 )
 from frl.federation.plan import evaluation_seeds
 from frl.federation.workers import WorkerPool, available_cores
-from frl.policies import YARDSTICK_LABELS, YARDSTICKS, make_yardstick
+from frl.policies import YARDSTICK_LABELS, YARDSTICKS, install_guide, make_yardstick
 
 MODEL = "model"
 """The policy name of a run's trained model(s) in :func:`evaluate_policies`."""
@@ -73,6 +73,8 @@ class PolicyEvaluator:
                 )
                 for path in paths
             ]
+            for agent in self.agents:  # a residual actor drives through its teacher
+                install_guide(agent, self.env.config)
 
     def run(
         self,

@@ -12,6 +12,8 @@ NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
 ENCODERS: tuple[str, ...] = ("flat", "vehicles")
 ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
 WARMUP_POLICIES: tuple[str, ...] = ("uniform", "gap_acceptance")
+GUIDES: tuple[str, ...] = ("none", "gap_acceptance")
+GUIDE_FILTERS: tuple[str, ...] = ("q", "none")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
@@ -30,6 +32,12 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "explore_hold_probability": 0.0,
     "actor_update": "tanh",
     "critic_layer_norm": False,
+    "guide": "none",
+    "guide_weight": 0.0,
+    "guide_decay_steps": 0,
+    "guide_filter": "q",
+    "guide_filter_margin": 0.0,
+    "guide_residual": False,
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -140,6 +148,33 @@ class DDPGConfig:
     CrossQ use it): the hidden activations keep unit scale whatever the inputs, so a
     critic whose inputs are a few sparse non-zeros starts at a useful scale and its
     targets, which it chases, cannot blow up its features. The actor is unchanged."""
+    guide: str = "none"
+    """A teacher whose action is stored with every transition: ``none``, or
+    ``gap_acceptance``, frl's rule-based driver (:class:`frl.policies.GapAcceptancePolicy`,
+    installed by whoever drives the agent: :meth:`frl.agents.DDPG.set_guide`; frl's
+    vehicles do). What the teacher's actions are used for: ``guide_weight`` and
+    ``guide_residual``. An agent with a guide learns from the teacher as well as from its
+    own driving: a guided agent, not the paper's."""
+    guide_weight: float = 0.0
+    """Weight of the imitation term in the actor's loss, the squared distance between the
+    actor's action and the teacher's on every sampled state (DDPG from demonstrations,
+    Nair et al. 2018, with the teacher asked on the learner's own states as DAgger does);
+    0: no term."""
+    guide_decay_steps: int = 0
+    """Environment steps over which ``guide_weight`` falls linearly to 0; 0: it stays."""
+    guide_filter: str = "q"
+    """Where the imitation term applies: ``q``, only on states where the critic does not
+    rate the actor's action above the teacher's by more than ``guide_filter_margin``
+    (Nair et al.'s Q-filter: the actor may leave the teacher where it knows better), or
+    ``none``, on every state."""
+    guide_filter_margin: float = 0.0
+    """How far the Q-filter distrusts the critic: the actor leaves the teacher only where
+    Q(s, actor) exceeds Q(s, teacher) by more than this."""
+    guide_residual: bool = False
+    """The actor learns a correction to the teacher (Silver et al. 2018, residual policy
+    learning): its action is clip(teacher(s) + 2 * actor(s)), so it drives like the teacher
+    from the first step (the output layer starts near zero) and can still reach either
+    bound. Needs ``actor_update=inverting_gradients`` and a ``guide``."""
     preactivation_l2: float = 0.0
     """Weight of the mean squared pre-tanh output in the actor loss: keeps the actor off
     tanh's flat tails, where no gradient can bring a saturated action back."""
@@ -205,6 +240,8 @@ class DDPGConfig:
             "target_noise_clip",
             "terminal_fraction",
             "explore_hold_probability",
+            "guide_weight",
+            "guide_filter_margin",
         ):
             value = getattr(self, name)
             _require(
@@ -274,6 +311,7 @@ class DDPGConfig:
             "preactivation_l2 keeps a tanh actor off its flat tails; with "
             "actor_update=inverting_gradients leave it at 0",
         )
+        self._check_guide()
         _require(
             self.encoder in ENCODERS,
             f"encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}",
@@ -286,6 +324,46 @@ class DDPGConfig:
             self.sparse_input in (True, False, "auto"),
             f"sparse_input must be True, False or 'auto', got {self.sparse_input!r}",
         )
+
+    def _check_guide(self) -> None:
+        _require(
+            self.guide in GUIDES,
+            f"guide must be one of {', '.join(GUIDES)}, got {self.guide!r}",
+        )
+        _require(self.guide_weight >= 0, f"guide_weight must be >= 0, got {self.guide_weight}")
+        _require(
+            isinstance(self.guide_decay_steps, int)
+            and not isinstance(self.guide_decay_steps, bool)
+            and self.guide_decay_steps >= 0,
+            f"guide_decay_steps must be a non-negative integer, got {self.guide_decay_steps!r}",
+        )
+        _require(
+            self.guide_filter in GUIDE_FILTERS,
+            f"guide_filter must be one of {', '.join(GUIDE_FILTERS)}, got {self.guide_filter!r}",
+        )
+        _require(
+            self.guide_filter_margin >= 0,
+            f"guide_filter_margin must be >= 0, got {self.guide_filter_margin}",
+        )
+        _require(
+            isinstance(self.guide_residual, bool),
+            f"guide_residual must be true or false, got {self.guide_residual!r}",
+        )
+        uses_guide = self.guide_weight > 0 or self.guide_residual
+        _require(
+            self.guide != "none" or not uses_guide,
+            "guide_weight and guide_residual learn from a teacher: set guide=gap_acceptance",
+        )
+        _require(
+            not self.guide_residual or self.actor_update == "inverting_gradients",
+            "guide_residual needs actor_update=inverting_gradients (a clipped output that "
+            "can sit at the teacher's bound and still learn)",
+        )
+
+    @property
+    def guided(self) -> bool:
+        """Whether the agent stores a teacher's actions (``guide`` is not ``none``)."""
+        return self.guide != "none"
 
     def use_sparse(self, num_features: int) -> bool:
         """Whether observations of ``num_features`` features reach the networks as

@@ -18,6 +18,7 @@ from torch import Tensor, nn
 from frl.agents.checkpoint import CheckpointError, read_checkpoint, write_checkpoint
 from frl.agents.config import DDPGConfig
 from frl.agents.functional import hard_update, soft_update, td_target
+from frl.agents.guide import guide_weight_at, imitation_loss, q_filter, residual_action
 from frl.agents.learn import LearnCallback, learn
 from frl.agents.n_step import NStepAccumulator
 from frl.agents.networks import Actor, Critic, init_mlp_
@@ -185,10 +186,12 @@ class DDPG:
             np.random.default_rng(buffer_seq),
             sparse=compact,
             sparse_width=cfg.sparse_capacity,
+            guided=cfg.guided,
         )
         self._explore_rng = np.random.default_rng(explore_seq)
         self._warmup_action: np.ndarray | None = None
         self._warmup_policy: Callable[[np.ndarray], Any] | None = None
+        self._guide: Callable[[Any], Any] | None = None
         self._held_action: np.ndarray | None = None
         self._hold_left = 0
         self._stretch_action: np.ndarray | None = None
@@ -286,8 +289,10 @@ class DDPG:
             action = self._warmup_decision(obs)
             self.last_policy_action = np.full(self.action_dim, np.nan)
         else:
+            teacher = self._guide_tensor([obs]) if cfg.guide_residual else None
             with torch.no_grad(), self._autocast():
-                action = self.actor(self._flat_obs_tensor(obs))[0].double().cpu().numpy()
+                policy = self._policy(self.actor, self._flat_obs_tensor(obs), teacher)
+            action = policy[0].double().cpu().numpy()
             self.last_policy_action = action
             if explore:
                 action = self._explore_stretch(np.clip(action + self.noise(), -1.0, 1.0))
@@ -322,9 +327,13 @@ class DDPG:
                 f"(N, {', '.join(map(str, self.obs_shape))}), got {obs.shape}"
             )
         flat = torch.from_numpy(batch).to(self.device)
+        teacher = None
+        if self.config.guide_residual:
+            observations = obs.reshape(-1, *self.obs_shape)
+            teacher = self._guide_tensor(list(observations))
         with torch.no_grad(), self._autocast():
             inputs = SparseRows.from_dense(flat) if self.sparse else flat
-            actions = self.actor(inputs).double().cpu().numpy()
+            actions = self._policy(self.actor, inputs, teacher).double().cpu().numpy()
         if not deterministic:
             actions = np.clip(actions + np.stack([self.noise() for _ in actions]), -1.0, 1.0)
         env_actions = np.stack([self._denormalise(action) for action in actions])
@@ -359,6 +368,41 @@ class DDPG:
             self._stretch_left = int(duration) - 1
             return self._stretch_action
         return action
+
+    def _policy(self, actor: Actor, inputs: Tensor | SparseRows, teacher: Tensor | None) -> Tensor:
+        """``actor``'s actions in [-1, 1]; over the teacher's (``teacher``, normalised)
+        under ``guide_residual``."""
+        if teacher is None:
+            return actor(inputs)
+        return residual_action(teacher, actor.preactivation(inputs)).clamp(-1.0, 1.0)
+
+    def set_guide(self, policy: Callable[[Any], Any] | None) -> None:
+        """The teacher of a guided agent (``DDPGConfig.guide`` other than ``none``): a
+        callable from an observation to an action in the env's units. frl's vehicles
+        install :class:`frl.policies.GapAcceptancePolicy` for ``gap_acceptance``, and
+        :func:`frl.policies.install_guide` does it for a loaded agent."""
+        self._guide = policy
+
+    @property
+    def needs_guide(self) -> bool:
+        """Whether the agent stores a teacher's actions and has no teacher installed yet."""
+        return self.config.guided and self._guide is None
+
+    def _guide_action(self, obs: Any) -> np.ndarray:
+        """The teacher's action at ``obs``, normalised to [-1, 1] (float32)."""
+        if self._guide is None:
+            raise RuntimeError(
+                f"guide={self.config.guide!r} needs the teacher: call agent.set_guide(policy) "
+                "first (frl's vehicles do; frl.policies.install_guide(agent, env_config) for "
+                "a loaded agent)"
+            )
+        action = np.asarray(self._guide(obs), dtype=np.float64).reshape(-1)
+        return self._normalise(action).astype(np.float32)
+
+    def _guide_tensor(self, observations: list[Any]) -> Tensor:
+        """The teacher's normalised actions at ``observations``, a batch on the device."""
+        actions = np.stack([self._guide_action(obs) for obs in observations])
+        return torch.from_numpy(actions).to(self.device)
 
     def set_warmup_policy(self, policy: Callable[[np.ndarray], Any] | None) -> None:
         """The driver of the warm-up under ``warmup_policy`` other than ``uniform``: a
@@ -403,7 +447,7 @@ class DDPG:
         self._held_action, self._hold_left = None, 0
         self._stretch_action, self._stretch_left = None, 0
         for transition in self._n_step.flush():
-            self.buffer.add(*transition)
+            self._add(*transition)
         self._warmup_action = None
         self.reset_noise()
 
@@ -435,10 +479,20 @@ class DDPG:
     ) -> None:  # fmt: skip
         """Into the buffer, through the n-step accumulator when ``n_step`` > 1."""
         if self.config.n_step == 1:
-            self.buffer.add(obs, action, reward, next_obs, terminated, horizon)
+            self._add(obs, action, reward, next_obs, terminated, horizon)
         else:
             for transition in self._n_step.push(obs, action, reward, next_obs, terminated, horizon):
-                self.buffer.add(*transition)
+                self._add(*transition)
+
+    def _add(
+        self, obs: Any, action: np.ndarray, reward: float, next_obs: Any, terminated: bool,
+        horizon: int,
+    ) -> None:  # fmt: skip
+        """Into the buffer, with the teacher's actions at both ends when the agent is guided."""
+        guide: tuple[np.ndarray, ...] = ()
+        if self.config.guided:
+            guide = (self._guide_action(obs), self._guide_action(next_obs))
+        self.buffer.add(obs, action, reward, next_obs, terminated, horizon, *guide)
 
     # ---------------------------------------------------------------- learning
     def update(self) -> dict[str, float]:
@@ -466,7 +520,10 @@ class DDPG:
         cfg = self.config
         with self._autocast():
             with torch.no_grad():
-                next_action = self._smoothed(self.actor_target(batch.next_obs))
+                target_policy = self._policy(
+                    self.actor_target, batch.next_obs, self._residual_base(batch.next_guide_actions)
+                )
+                next_action = self._smoothed(target_policy)
                 next_q = self.critic_target(batch.next_obs, next_action)
                 if self.critic2_target is not None:
                     other = self.critic2_target(batch.next_obs, next_action)
@@ -495,9 +552,41 @@ class DDPG:
         }
         # TD3's delayed updates: the actor and the targets move every policy_delay-th step.
         if self.num_updates % cfg.policy_delay == 0:
-            stats["actor_loss"] = self._actor_step(batch)
+            stats.update(self._actor_step(batch))
             soft_update(self._target_params, self._online_params, cfg.tau)
         return stats
+
+    def _residual_base(self, guide_actions: Tensor | None) -> Tensor | None:
+        """The teacher's actions a residual actor adds to; None for any other actor."""
+        return guide_actions if self.config.guide_residual else None
+
+    def _imitation_weight(self) -> float:
+        """The imitation term's weight now (``guide_weight``, decayed)."""
+        cfg = self.config
+        return guide_weight_at(cfg.guide_weight, cfg.guide_decay_steps, self.num_env_steps)
+
+    def _imitation(
+        self, batch: Batch, preactivation: Tensor, q_actor: Tensor
+    ) -> tuple[Tensor, Tensor] | None:
+        """The weighted imitation term on the actor's (unbounded) action and the share of
+        the batch it applies to; None when it is off.
+
+        The Q-filter compares the critic's value of the teacher's action with its value of
+        the actor's (``q_actor``, the clipped action), both without gradients.
+        """
+        weight = self._imitation_weight()
+        if weight <= 0 or batch.guide_actions is None:
+            return None
+        teacher = batch.guide_actions
+        cfg = self.config
+        if cfg.guide_filter == "q":
+            with torch.no_grad(), self._autocast():
+                q_teacher = self.critic(batch.obs, teacher)
+            mask = q_filter(q_teacher, q_actor.detach(), cfg.guide_filter_margin)
+        else:
+            mask = torch.ones(teacher.shape[0], device=teacher.device)
+        loss = weight * imitation_loss(preactivation.float(), teacher, mask)
+        return loss, mask.mean()
 
     def _smoothed(self, action: Tensor) -> Tensor:
         """TD3's target policy smoothing (``target_noise`` > 0), else ``action`` itself."""
@@ -510,45 +599,57 @@ class DDPG:
         noise = noise.clamp_(-cfg.target_noise_clip, cfg.target_noise_clip)
         return (action.float() + noise).clamp_(-1.0, 1.0)
 
-    def _actor_step(self, batch: Batch) -> Tensor:
-        """One actor update through the first critic; the detached loss -Q."""
+    def _actor_step(self, batch: Batch) -> dict[str, Tensor]:
+        """One actor update through the first critic: the detached loss -Q, and the
+        imitation term with the share of the batch it reached when the agent is guided."""
         cfg = self.config
         # Freeze the critic so backward computes only what the actor needs: no critic
         # weight gradients (and none for its sparse first layer), just dQ/da.
         self.critic.requires_grad_(False)
         try:
             if cfg.actor_update == "inverting_gradients":
-                actor_loss = self._inverting_gradients_backward(batch)
+                loss, preactivation, q_policy = self._inverting_gradients_loss(batch)
             else:
-                with self._autocast():
-                    if cfg.preactivation_l2 > 0:
-                        preactivation = self.actor.preactivation(batch.obs)
-                        q_policy = self.critic(batch.obs, torch.tanh(preactivation))
-                    else:
-                        q_policy = self.critic(batch.obs, self.actor(batch.obs))
-                actor_loss = -q_policy.mean()
-                if cfg.preactivation_l2 > 0:
-                    penalty = cfg.preactivation_l2 * preactivation.square().mean()
-                    actor_loss = actor_loss + penalty
-                self.actor_optimizer.zero_grad(set_to_none=True)
-                actor_loss.backward()
+                loss, preactivation, q_policy = self._deterministic_policy_loss(batch)
+            stats = {"actor_loss": -q_policy.detach().mean()}
+            imitation = self._imitation(batch, preactivation, q_policy)
+            if imitation is not None:
+                loss = loss + imitation[0]
+                stats["imitation_loss"], stats["guide_share"] = imitation[0].detach(), imitation[1]
+            self.actor_optimizer.zero_grad(set_to_none=True)
+            loss.backward()
         finally:
             self.critic.requires_grad_(True)
         if self._proximal_actor:
             self._add_proximal_gradient(self._proximal_actor)
         self.actor_optimizer.step()
-        return actor_loss.detach()
+        return stats
 
-    def _inverting_gradients_backward(self, batch: Batch) -> Tensor:
-        """The actor's gradient by inverting gradients (Hausknecht and Stone 2016).
+    def _deterministic_policy_loss(self, batch: Batch) -> tuple[Tensor, Tensor, Tensor]:
+        """DDPG's actor loss -Q(s, tanh(p)) (plus the pre-tanh penalty), with ``p`` and Q."""
+        cfg = self.config
+        with self._autocast():
+            preactivation = self.actor.preactivation(batch.obs)
+            q_policy = self.critic(batch.obs, torch.tanh(preactivation))
+        loss = -q_policy.mean()
+        if cfg.preactivation_l2 > 0:
+            loss = loss + cfg.preactivation_l2 * preactivation.square().mean()
+        return loss, preactivation, q_policy
+
+    def _inverting_gradients_loss(self, batch: Batch) -> tuple[Tensor, Tensor, Tensor]:
+        """A surrogate loss whose gradient is the actor's by inverting gradients (Hausknecht
+        and Stone 2016), with the unbounded action ``p`` and Q at the clipped one.
 
         dQ/da at the clipped action is scaled by ``(1 - p) / 2`` where it asks for more
-        and ``(p + 1) / 2`` where it asks for less, ``p`` the unbounded output: it fades
-        as the output nears the bound it points to and turns round beyond it, so the
-        output stays within [-1, 1] and can always come back.
+        and ``(p + 1) / 2`` where it asks for less: it fades as the output nears the bound
+        it points to and turns round beyond it, so the output stays within [-1, 1] and can
+        always come back. A residual actor's ``p`` is the teacher's action plus its own.
         """
         with self._autocast():
             preactivation = self.actor.preactivation(batch.obs)
+        base = self._residual_base(batch.guide_actions)
+        if base is not None:
+            preactivation = residual_action(base, preactivation)
         action = preactivation.detach().clamp(-1.0, 1.0).requires_grad_(True)
         with self._autocast():
             q_policy = self.critic(batch.obs, action)
@@ -556,9 +657,7 @@ class DDPG:
         room = preactivation.detach()
         scale = torch.where(dq_da > 0, (1.0 - room) / 2.0, (room + 1.0) / 2.0)
         surrogate = -(dq_da * scale * preactivation).sum() / preactivation.shape[0]
-        self.actor_optimizer.zero_grad(set_to_none=True)
-        surrogate.backward()
-        return -q_policy.detach().mean()
+        return surrogate, preactivation, q_policy
 
     def critic_values(self, observations: Any, actions: Any) -> np.ndarray:
         """Q(s, a) of the online critic for a batch of observations and env-unit actions."""

@@ -75,12 +75,19 @@ def learn(
 
     Raises:
         ValueError: a non-positive budget, or spaces that do not match the agent's.
+        RuntimeError: a guided agent (``DDPGConfig.guide``) without its teacher
+            (:meth:`frl.agents.DDPG.set_guide`).
     """
     if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, (int, np.integer)):
         raise ValueError(f"total_timesteps must be a positive integer, got {total_timesteps!r}")
     if total_timesteps <= 0:
         raise ValueError(f"total_timesteps must be a positive integer, got {total_timesteps}")
     _check_spaces(agent, env)
+    if agent.needs_guide:
+        raise RuntimeError(
+            f"this agent learns from a teacher (guide={agent.config.guide!r}): install it "
+            "first, agent.set_guide(policy), or frl.policies.install_guide(agent, env.config)"
+        )
     if seed is None and agent.learn_calls == 0:
         seed = agent.seed
     writer = _summary_writer(tensorboard_log)

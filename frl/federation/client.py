@@ -26,11 +26,15 @@ from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
 from frl.fileio import write_json_atomic
-from frl.policies import GapAcceptancePolicy
+from frl.policies import install_guide
 
-LOSS_NAMES: tuple[str, ...] = ("critic_loss", "actor_loss", "q_mean", "td_error")
+LOSS_NAMES: tuple[str, ...] = (
+    "critic_loss", "actor_loss", "q_mean", "td_error", "imitation_loss", "guide_share",
+)  # fmt: skip
 """Per-step learning statistics a client reports (NaN on steps without an update);
-``td_error`` is the batch's mean |Q(s, a) - (r + gamma Q'(s', mu'(s')))|."""
+``td_error`` is the batch's mean |Q(s, a) - (r + gamma Q'(s', mu'(s')))|; a guided agent's
+``imitation_loss`` (weighted) and ``guide_share``, the share of the batch the imitation
+term reached past the Q-filter."""
 
 ACTION_SERIES: tuple[str, ...] = ("executed", "policy")
 """Per-step actions a client reports: what it drove (noise and warm-up included), and
@@ -126,8 +130,7 @@ class VehicleClient:
             init_seed=spec.init_seed,
             device=spec.device,
         )
-        if spec.agent.warmup_policy == "gap_acceptance":
-            self.agent.set_warmup_policy(GapAcceptancePolicy(self.env.config))
+        install_guide(self.agent, self.env.config)
         if spec.proximal_mu:
             self.agent.set_proximal_anchor(spec.proximal_mu)
         self._observation: np.ndarray | None = None

@@ -18,6 +18,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from frl.agents import DDPG
+from frl.envs.config import EnvConfig
 from frl.envs.intersection import IntersectionEnv
 from frl.policies.blind import ConstantPolicy, always_brake, full_throttle
 from frl.policies.gap_acceptance import GapAcceptancePolicy
@@ -49,7 +51,24 @@ def make_yardstick(name: str, env: IntersectionEnv) -> Policy:
     raise ValueError(f"unknown policy {name!r}; choose one of {', '.join(YARDSTICKS)}")
 
 
+TEACHERS: dict[str, Callable[[EnvConfig], Policy]] = {"gap_acceptance": GapAcceptancePolicy}
+"""The drivers an agent can learn from (``DDPGConfig.guide``, ``warmup_policy``), by name."""
+
+
+def install_guide(agent: DDPG, env: EnvConfig) -> None:
+    """Give ``agent`` the teachers its config names for the scenario ``env``: the guide of
+    a guided agent (``DDPGConfig.guide``; a residual actor acts through it, so a loaded
+    one needs it before it drives) and the driver of a rule-driven warm-up. An agent that
+    names neither is left as it is."""
+    config = agent.config
+    if config.guide != "none":
+        agent.set_guide(TEACHERS[config.guide](env))
+    if config.warmup_policy != "uniform":
+        agent.set_warmup_policy(TEACHERS[config.warmup_policy](env))
+
+
 __all__ = [
+    "TEACHERS",
     "YARDSTICKS",
     "YARDSTICK_LABELS",
     "ConstantPolicy",
@@ -59,5 +78,6 @@ __all__ = [
     "Rollout",
     "always_brake",
     "full_throttle",
+    "install_guide",
     "make_yardstick",
 ]

@@ -1,0 +1,49 @@
+"""Learning from a teacher: the imitation term of the actor's loss, its Q-filter, its
+schedule, and the residual action (:attr:`frl.agents.DDPGConfig.guide`).
+
+Pure tensor maths, tested against hand-computed numbers in tests/test_agent_guide.py.
+Actions are in the actor's normalised units, [-1, 1].
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+RESIDUAL_SCALE = 2.0
+"""A residual actor's output, in [-1, 1], is doubled before it is added to the teacher's
+action: from a teacher at either bound it can still reach the other."""
+
+
+def guide_weight_at(weight: float, decay_steps: int, step: int) -> float:
+    """The imitation weight after ``step`` environment steps: ``weight``, falling linearly
+    to 0 at ``decay_steps`` (0: no decay)."""
+    if decay_steps <= 0:
+        return weight
+    return weight * max(0.0, 1.0 - step / decay_steps)
+
+
+def q_filter(q_teacher: Tensor, q_actor: Tensor, margin: float) -> Tensor:
+    """1.0 where the imitation term applies, 0.0 where the actor may leave the teacher:
+    where the critic rates the actor's action above the teacher's by more than ``margin``
+    (Nair et al. 2018's Q-filter for ``margin`` 0)."""
+    return (q_actor <= q_teacher + margin).float()
+
+
+def imitation_loss(preactivation: Tensor, teacher: Tensor, mask: Tensor) -> Tensor:
+    """Batch mean of ``mask * (preactivation - teacher)**2`` over the action dimensions.
+
+    The actor's output is clipped to [-1, 1]: where the teacher sits at a bound, an output
+    already past it takes that action too and is not pulled back.
+    """
+    gap = preactivation - teacher
+    past_bound = ((teacher >= 1.0) & (gap > 0)) | ((teacher <= -1.0) & (gap < 0))
+    gap = torch.where(past_bound, torch.zeros_like(gap), gap)
+    per_sample = gap.square().sum(dim=-1) if gap.dim() > 1 else gap.square()
+    return (mask * per_sample).mean()
+
+
+def residual_action(teacher: Tensor, preactivation: Tensor) -> Tensor:
+    """The unbounded action of a residual actor: the teacher's action plus
+    ``RESIDUAL_SCALE`` times the actor's (Silver et al. 2018); the caller clips it."""
+    return teacher + RESIDUAL_SCALE * preactivation
