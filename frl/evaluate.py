@@ -18,12 +18,15 @@ cached per traffic and seeds (frl.yardsticks). Results are merged into
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+import gymnasium as gym
 
 from frl import run_directory as rundir
 from frl import yardsticks as yardstick_cache
@@ -202,6 +205,7 @@ def evaluate_policy(
     on_reset: Callable[[], None] | None = None,
     progress: bool = False,
     verbose: bool = True,
+    route_observation: bool = False,
 ) -> dict[str, Any]:
     """Test any driver on frl's test protocol, beside the yardsticks on the same seeds.
 
@@ -217,6 +221,9 @@ def evaluate_policy(
         on_reset: called after every reset (a recurrent policy's episode start).
         yardsticks: tested on the same seeds (cached, in worker processes); ``()`` for none.
         verbose: print the table (as ``frl.evaluate`` does).
+        route_observation: the policy observes the ego's route beside the grid (a Dict
+            observation, :attr:`frl.envs.EnvConfig.route_observation`), as it trained;
+            the same episodes either way.
 
     Returns:
         ``{"per_task", "average", "yardsticks": {name: {"per_task", "average"}},
@@ -228,6 +235,7 @@ def evaluate_policy(
             all before any episode runs.
     """
     act = _policy_callable(policy)
+    _check_route_observation(policy, route_observation)
     settings = default_settings(traffic, seed)  # refuses an unknown traffic, a bad seed
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes <= 0:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
@@ -242,7 +250,10 @@ def evaluate_policy(
     bar = _progress_bar(progress, episodes * len(tasks), "policy")
     try:
         for task in tasks:
-            env = IntersectionEnv(settings.eval_env(task), settings.reward)
+            env_config = dataclasses.replace(
+                settings.eval_env(task), route_observation=route_observation
+            )
+            env = IntersectionEnv(env_config, settings.reward)
             try:
                 seeds = evaluation_seeds(seed, task, episodes)
                 per_task[task] = summarize(run_episodes(env, act, task, seeds, on_reset))
@@ -264,8 +275,30 @@ def evaluate_policy(
     return evaluation
 
 
+def _check_route_observation(policy: Any, route_observation: bool) -> None:
+    """A policy whose observation space is known must get the observation it expects."""
+    space = getattr(policy, "observation_space", None)
+    layout = getattr(policy, "layout", None)
+    if layout is not None and getattr(layout, "parts", None) is not None:
+        expects_route = "route" in layout.parts
+    elif isinstance(space, gym.spaces.Dict):
+        expects_route = "route" in space.spaces
+    elif isinstance(space, gym.spaces.Box) or layout is not None:
+        expects_route = False
+    else:
+        return  # a plain callable: it gets what it asks for
+    if expects_route != route_observation:
+        wanted = "a Dict of the grid and the route" if expects_route else "the grid alone"
+        raise ValueError(f"this policy observes {wanted}: pass route_observation={expects_route}")
+
+
 def _policy_callable(policy: Any) -> Callable[[Any], Any]:
     """``observation -> action`` from a callable or a ``predict``-er."""
+    if getattr(policy, "needs_guide", False) and policy.config.guide_residual:
+        raise ValueError(
+            "this agent's residual actor drives through its teacher: "
+            "frl.policies.install_guide(agent, env_config) first"
+        )
     predict = getattr(policy, "predict", None)
     if callable(predict):
         return lambda observation: predict(observation, deterministic=True)[0]

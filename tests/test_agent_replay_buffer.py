@@ -45,7 +45,8 @@ def test_batch_shapes_and_dtypes_dense() -> None:
     assert batch.obs.shape == (6, 3) and batch.next_obs.shape == (6, 3)
     assert batch.actions.shape == (6, 2) and batch.rewards.shape == (6,)
     assert batch.terminated.shape == (6,)
-    assert all(t.dtype == torch.float32 for t in batch)
+    assert all(t.dtype == torch.float32 for t in batch if t is not None)
+    assert batch.guide_actions is None and batch.next_guide_actions is None  # no teacher
 
 
 def test_sample_only_from_filled_slots_and_empty_raises() -> None:
@@ -157,15 +158,21 @@ def test_paper_sized_compact_buffer_fits_in_100_mb() -> None:
     assert dense.nbytes * 100 > 1e9  # what the compact form avoids
 
 
-def test_state_dict_round_trip_resumes_identical_sampling() -> None:
+@pytest.mark.parametrize("guided", [False, True])
+def test_state_dict_round_trip_resumes_identical_sampling(guided: bool) -> None:
     rng = np.random.default_rng(4)
-    buffer = ReplayBuffer(16, GRID, 2, np.random.default_rng(5), sparse=True, sparse_width=8)
+    options = {"sparse": True, "sparse_width": 8, "guided": guided}
+    buffer = ReplayBuffer(16, GRID, 2, np.random.default_rng(5), **options)
     for _ in range(20):
-        buffer.add(sparse_grid(rng, 2), rng.uniform(-1, 1, 2), 1.0, sparse_grid(rng, 5), True)
-    copy = ReplayBuffer(16, GRID, 2, np.random.default_rng(99), sparse=True, sparse_width=8)
+        teacher = (rng.uniform(-1, 1, 2), rng.uniform(-1, 1, 2)) if guided else ()
+        buffer.add(
+            sparse_grid(rng, 2), rng.uniform(-1, 1, 2), 1.0, sparse_grid(rng, 5), True, 1, *teacher
+        )
+    copy = ReplayBuffer(16, GRID, 2, np.random.default_rng(99), **options)
     copy.load_state_dict(buffer.state_dict())
     a, b = buffer.sample(8), copy.sample(8)
-    assert all(torch.equal(x, y) for x, y in zip(a, b, strict=True))
+    assert all(x is y is None or torch.equal(x, y) for x, y in zip(a, b, strict=True))
+    assert (a.guide_actions is not None) == guided
     assert (copy.pos, len(copy)) == (buffer.pos, len(buffer))
 
 

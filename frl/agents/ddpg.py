@@ -23,6 +23,7 @@ from frl.agents.learn import LearnCallback, learn
 from frl.agents.n_step import NStepAccumulator
 from frl.agents.networks import Actor, Critic, init_mlp_
 from frl.agents.noise import generator_state, make_noise, set_generator_state
+from frl.agents.observations import ObservationLayout, space_from_record
 from frl.agents.precision import autocast, resolve_precision
 from frl.agents.replay_buffer import Batch, ReplayBuffer
 from frl.agents.sparse_linear import SparseRows
@@ -84,7 +85,8 @@ class DDPG:
     """Deep Deterministic Policy Gradient agent for a Box observation and a Box action space.
 
     Args:
-        observation_space: any Box; observations are flattened. Large ones (see
+        observation_space: any Box, or a Dict of Boxes (:mod:`frl.agents.observations`);
+            observations are flattened. Large ones (see
             ``DDPGConfig.sparse_input``) take the sparse first-layer path and compact replay.
         action_space: a Box with finite bounds. The actor works in [-1, 1] and ``act``
             rescales to the bounds; noise is added in those normalised units.
@@ -105,15 +107,15 @@ class DDPG:
 
     def __init__(
         self,
-        observation_space: spaces.Box,
+        observation_space: spaces.Box | spaces.Dict,
         action_space: spaces.Box,
         config: DDPGConfig | None = None,
         seed: int = 0,
         device: str | torch.device = "cpu",
         init_seed: int | None = None,
     ) -> None:
-        if not isinstance(observation_space, spaces.Box):
-            raise TypeError(f"observation_space must be a gymnasium Box, got {observation_space}")
+        self.layout = ObservationLayout(observation_space)
+        """How observations become the flat vectors the networks and the buffer hold."""
         if not isinstance(action_space, spaces.Box):
             raise TypeError(f"action_space must be a gymnasium Box, got {action_space}")
         if not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
@@ -122,8 +124,9 @@ class DDPG:
         cfg = self.config
         self.seed = int(seed)
         self.device = torch.device(device)
-        self.obs_shape: tuple[int, ...] = tuple(observation_space.shape)
-        self.obs_dim = int(np.prod(self.obs_shape, dtype=np.int64))
+        self.obs_shape: tuple[int, ...] = self.layout.shape
+        """The stored observation's shape: a Box's own, a Dict's flat length."""
+        self.obs_dim = self.layout.num_features
         self.action_shape: tuple[int, ...] = tuple(action_space.shape)
         self.action_dim = int(np.prod(self.action_shape, dtype=np.int64))
         self.action_low = action_space.low.astype(np.float64).reshape(-1)
@@ -239,7 +242,9 @@ class DDPG:
 
     def _encoder(self) -> VehicleSetEncoder | None:
         if self.config.encoder == "vehicles":
-            return VehicleSetEncoder(self.obs_shape, self.config.encoder_width)
+            return VehicleSetEncoder(
+                self.layout.grid_shape, self.config.encoder_width, self.layout.extra_features
+            )
         return None
 
     # ------------------------------------------------------------------ acting
@@ -289,9 +294,10 @@ class DDPG:
             action = self._warmup_decision(obs)
             self.last_policy_action = np.full(self.action_dim, np.nan)
         else:
-            teacher = self._guide_tensor([obs]) if cfg.guide_residual else None
+            flat = self.layout.flat(obs)
+            teacher = self._guide_tensor([flat]) if cfg.guide_residual else None
             with torch.no_grad(), self._autocast():
-                policy = self._policy(self.actor, self._flat_obs_tensor(obs), teacher)
+                policy = self._policy(self.actor, self._flat_obs_tensor(flat), teacher)
             action = policy[0].double().cpu().numpy()
             self.last_policy_action = action
             if explore:
@@ -316,28 +322,16 @@ class DDPG:
         Raises:
             ValueError: an observation whose shape is neither the space's nor a batch of it.
         """
-        obs = np.asarray(observation, dtype=np.float32)
-        if obs.shape == self.obs_shape:
-            batch = obs.reshape(1, self.obs_dim)
-        elif obs.ndim == len(self.obs_shape) + 1 and obs.shape[1:] == self.obs_shape:
-            batch = obs.reshape(len(obs), self.obs_dim)
-        else:
-            raise ValueError(
-                f"expected an observation of shape {self.obs_shape} or a batch of them "
-                f"(N, {', '.join(map(str, self.obs_shape))}), got {obs.shape}"
-            )
+        batch, batched = self.layout.flat_batch(observation)
         flat = torch.from_numpy(batch).to(self.device)
-        teacher = None
-        if self.config.guide_residual:
-            observations = obs.reshape(-1, *self.obs_shape)
-            teacher = self._guide_tensor(list(observations))
+        teacher = self._guide_tensor(list(batch)) if self.config.guide_residual else None
         with torch.no_grad(), self._autocast():
             inputs = SparseRows.from_dense(flat) if self.sparse else flat
             actions = self._policy(self.actor, inputs, teacher).double().cpu().numpy()
         if not deterministic:
             actions = np.clip(actions + np.stack([self.noise() for _ in actions]), -1.0, 1.0)
         env_actions = np.stack([self._denormalise(action) for action in actions])
-        return (env_actions if obs.shape != self.obs_shape else env_actions[0]), None
+        return (env_actions if batched else env_actions[0]), None
 
     def learn(
         self,
@@ -396,7 +390,10 @@ class DDPG:
                 "first (frl's vehicles do; frl.policies.install_guide(agent, env_config) for "
                 "a loaded agent)"
             )
-        action = np.asarray(self._guide(obs), dtype=np.float64).reshape(-1)
+        observation = self.layout.unflat(obs)
+        if self.layout.parts is None:  # a Box's observation, whether stored flat or not
+            observation = np.asarray(observation).reshape(self.obs_shape)
+        action = np.asarray(self._guide(observation), dtype=np.float64).reshape(-1)
         return self._normalise(action).astype(np.float32)
 
     def _guide_tensor(self, observations: list[Any]) -> Tensor:
@@ -456,6 +453,7 @@ class DDPG:
     ) -> None:
         """Store a transition. Pass gymnasium's ``terminated``, not ``terminated or truncated``:
         a time-limit cut-off is not a terminal state and must still bootstrap."""
+        obs, next_obs = self.layout.flat(obs), self.layout.flat(next_obs)
         normalised = self._normalise(np.asarray(action, dtype=np.float64).reshape(-1))
         repeat = self.config.action_repeat
         if repeat == 1:
@@ -660,7 +658,10 @@ class DDPG:
         return surrogate, preactivation, q_policy
 
     def critic_values(self, observations: Any, actions: Any) -> np.ndarray:
-        """Q(s, a) of the online critic for a batch of observations and env-unit actions."""
+        """Q(s, a) of the online critic for a batch of observations (an array, or for a
+        Dict space a sequence of observations) and env-unit actions."""
+        if self.layout.parts is not None and not isinstance(observations, np.ndarray):
+            observations = [self.layout.flat(o) for o in observations]
         obs = np.asarray(observations, dtype=np.float32).reshape(-1, self.obs_dim)
         normalised = self._normalise(
             np.asarray(actions, dtype=np.float64).reshape(len(obs), -1)
@@ -765,6 +766,7 @@ class DDPG:
     def _spaces_record(self) -> dict[str, Any]:
         return {
             "obs_shape": list(self.obs_shape),
+            "obs_parts": self.layout.record(),
             "action_shape": list(self.action_shape),
             "action_low": torch.from_numpy(self.action_low.copy()),
             "action_high": torch.from_numpy(self.action_high.copy()),
@@ -901,6 +903,11 @@ class DDPG:
         if differing:
             raise CheckpointError(f"checkpoint config differs from this agent's in {differing}")
         spaces_saved, spaces_mine = data["spaces"], self._spaces_record()
+        if spaces_saved.get("obs_parts") != spaces_mine["obs_parts"]:
+            raise CheckpointError(
+                f"checkpoint observation parts {spaces_saved.get('obs_parts')} != "
+                f"{spaces_mine['obs_parts']}"
+            )
         for key in ("obs_shape", "action_shape"):
             if list(spaces_saved[key]) != spaces_mine[key]:
                 raise CheckpointError(f"checkpoint {key} {spaces_saved[key]} != {spaces_mine[key]}")
@@ -912,7 +919,7 @@ class DDPG:
     def from_checkpoint(
         cls,
         path: str | os.PathLike[str],
-        observation_space: spaces.Box | None = None,
+        observation_space: spaces.Box | spaces.Dict | None = None,
         action_space: spaces.Box | None = None,
         device: str | torch.device = "cpu",
     ) -> DDPG:
@@ -952,11 +959,13 @@ def _check_state_dict(saved: Any, current: dict[str, Tensor], prefix: str) -> No
             raise CheckpointError(f"checkpoint {prefix}.{key} has the wrong shape")
 
 
-def _spaces_of(data: dict[str, Any], path: str | os.PathLike[str]) -> tuple[spaces.Box, spaces.Box]:
+def _spaces_of(
+    data: dict[str, Any], path: str | os.PathLike[str]
+) -> tuple[spaces.Box | spaces.Dict, spaces.Box]:
     """The observation and action spaces a checkpoint records."""
     try:
         record = data["spaces"]
-        observation = spaces.Box(-np.inf, np.inf, tuple(record["obs_shape"]), dtype=np.float32)
+        observation = space_from_record(record["obs_shape"], record.get("obs_parts"))
         shape = tuple(record["action_shape"])
         low = record["action_low"].numpy().astype(np.float32).reshape(shape)
         high = record["action_high"].numpy().astype(np.float32).reshape(shape)

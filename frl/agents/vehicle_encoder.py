@@ -8,7 +8,8 @@ one vehicle, ``[row, column, channels...]`` with the cell's position as two numb
 observation (sum and max). Positions become continuous inputs that the network can
 interpolate between, as in highway-env's ``Kinematics`` observation with a
 permutation-invariant encoder, while the observation stays the paper's grid: nothing is
-read that the grid does not hold.
+read that the grid does not hold. Features after the grid (the route of the env's
+``route_observation``) pass through to the MLP beside the pooled vehicles.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from frl.agents.sparse_linear import SparseRows
 
 
 class VehicleSetEncoder(nn.Module):
-    """Flat grids ``[batch, H * W * C]`` -> ``[batch, 2 * width]`` (sum and max pooling).
+    """Flat grids ``[batch, H * W * C (+ extra)]`` -> ``[batch, 2 * width (+ extra)]``:
+    the vehicles' sum and max pooling, then the extra features as they are.
 
     Reads dense batches or :class:`SparseRows` (the replay buffer's compact form, whose
     rows list their non-zeros in increasing feature order): the same vehicles, in the
@@ -33,9 +35,10 @@ class VehicleSetEncoder(nn.Module):
             (the Eq. (1) grid's third channel). The other ``C - 1`` channels are the
             vehicle's features (speed and relative heading).
         width: output width of the per-vehicle MLP (two layers, ReLU).
+        extra_features: features that follow the grid in each row (0: the grid alone).
     """
 
-    def __init__(self, grid_shape: Sequence[int], width: int = 64) -> None:
+    def __init__(self, grid_shape: Sequence[int], width: int = 64, extra_features: int = 0) -> None:
         super().__init__()
         if len(grid_shape) != 3 or min(grid_shape) < 1 or grid_shape[2] < 2:
             raise ValueError(
@@ -45,7 +48,9 @@ class VehicleSetEncoder(nn.Module):
         rows, columns, channels = (int(n) for n in grid_shape)
         self.grid_shape = (rows, columns, channels)
         self.width = width
-        self.out_features = 2 * width
+        self.grid_features = rows * columns * channels
+        self.extra_features = int(extra_features)
+        self.out_features = 2 * width + self.extra_features
         self.layers = nn.ModuleList([nn.Linear(2 + channels - 1, width), nn.Linear(width, width)])
         # Each cell's (row, column) in [-1, 1]; filled by reset_parameters. Not in the
         # state dict: a function of the shape, not a parameter to average.
@@ -69,10 +74,12 @@ class VehicleSetEncoder(nn.Module):
         if isinstance(flat, SparseRows):
             batch = flat.batch_size
             sample, cell, channels = self._vehicles_of_rows(flat)
+            extra = self._extra_of_rows(flat) if self.extra_features else None
         else:
             rows, columns, width = self.grid_shape
             batch = flat.shape[0]
-            grid = flat.reshape(batch, rows * columns, width)
+            grid = flat[:, : self.grid_features].reshape(batch, rows * columns, width)
+            extra = flat[:, self.grid_features :] if self.extra_features else None
             sample, cell = torch.nonzero(grid[..., -1] > 0, as_tuple=True)
             channels = grid[sample, cell, :-1]
         vehicles = torch.cat([self.positions[cell], channels], dim=1)
@@ -85,7 +92,8 @@ class VehicleSetEncoder(nn.Module):
         pooled_max = hidden.new_zeros(batch, self.width).scatter_reduce_(
             0, sample[:, None].expand_as(hidden), hidden, "amax", include_self=True
         )
-        return torch.cat([pooled_sum, pooled_max], dim=1)
+        pooled = [pooled_sum, pooled_max] if extra is None else [pooled_sum, pooled_max, extra]
+        return torch.cat(pooled, dim=1)
 
     def _vehicles_of_rows(self, rows: SparseRows) -> tuple[Tensor, Tensor, Tensor]:
         """(sample, cell, the cell's other channels) of every occupied cell, in the order
@@ -95,8 +103,20 @@ class VehicleSetEncoder(nn.Module):
         width = self.grid_shape[2]
         row_ids = rows.row_ids()
         keys = row_ids * rows.num_features + rows.indices
-        occupied = torch.nonzero((rows.indices % width == width - 1) & (rows.values > 0))[:, 0]
+        in_grid = rows.indices < self.grid_features
+        occupied = rows.indices % width == width - 1
+        occupied = torch.nonzero(occupied & (rows.values > 0) & in_grid)[:, 0]
         wanted = keys[occupied, None] - (width - 1) + torch.arange(width - 1)
         found = torch.searchsorted(keys, wanted).clamp_(max=max(keys.numel() - 1, 0))
         channels = torch.where(keys[found] == wanted, rows.values[found], 0.0)
         return row_ids[occupied], rows.indices[occupied] // width, channels
+
+    def _extra_of_rows(self, rows: SparseRows) -> Tensor:
+        """The features after the grid, dense ``[batch, extra_features]`` (zeros where a
+        row stores none)."""
+        values = rows.values
+        extra = values.new_zeros(rows.batch_size, self.extra_features)
+        stored = torch.nonzero(rows.indices >= self.grid_features)[:, 0]
+        row_ids = rows.row_ids()[stored]
+        extra[row_ids, rows.indices[stored] - self.grid_features] = values[stored]
+        return extra

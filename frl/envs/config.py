@@ -280,6 +280,12 @@ class EnvConfig:
     """``libsumo`` (in-process, fast, one per process) or ``traci`` (socket, sumo-gui)."""
     scenario: ScenarioConfig = field(default_factory=ScenarioConfig)
     grid: GridConfig = field(default_factory=GridConfig)
+    route_observation: bool = False
+    """Observe the ego's route beside the grid: a Dict observation ``{"grid": Eq. (1),
+    "route": [left, straight, right, distance to the stop line / 10 m]}``, the task one-hot
+    and the distance along the route (negative past the line). Before the junction the
+    grid looks the same for every task, where a car in the far lane matters going
+    straight or left and not turning right; off (the paper's observation): the grid alone."""
 
     def __post_init__(self) -> None:
         _require(
@@ -299,6 +305,10 @@ class EnvConfig:
         _require(
             self.backend in SUMO_BACKENDS,
             f"unknown backend {self.backend!r}; choose one of {SUMO_BACKENDS}",
+        )
+        _require(
+            isinstance(self.route_observation, bool),
+            f"route_observation must be true or false, got {self.route_observation!r}",
         )
 
     def to_dict(self) -> dict[str, Any]:

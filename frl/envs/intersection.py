@@ -19,6 +19,8 @@ from frl.envs.scenario import Scenario, build_scenario
 from frl.envs.sumo_backend import BRAKE_LIGHT_BIT, EGO_ID, SumoSimulation, VehicleState
 
 _SEED_BOUND = 2**31 - 1
+ROUTE_DISTANCE_SCALE_M = 10.0
+"""The route observation's distance to the stop line is in units of this many metres."""
 
 
 @dataclass(frozen=True)
@@ -42,13 +44,17 @@ class EnvSnapshot:
     steps: int
     done: bool
     rng_state: dict[str, Any]
+    travelled: float = 0.0
+    """Metres the ego has driven in this episode (the route observation's distance)."""
 
 
-class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
+class IntersectionEnv(gym.Env[Any, np.ndarray]):
     """An agent car crosses a four-way intersection with broken lights among aggressive humans.
 
     - Observation: the (26, 18, 3) float32 grid of Eq. (1) in the ego's frame
-      (:func:`frl.envs.observation.occupancy_grid`).
+      (:class:`frl.envs.observation.OccupancyGrid`); with ``route_observation`` a Dict of
+      that grid (``"grid"``) and the ego's route (``"route"``: the task one-hot and the
+      distance to the stop line in tens of metres).
     - Action: ``Box(-1, 1, (1,))``, an acceleration of ``action * accel_scale`` m/s^2.
       The ego's speed is set every step: v <- clip(v + a * dt, 0, speed_limit).
       Actions outside [-1, 1] are clipped; a non-finite action raises ``ValueError``.
@@ -93,7 +99,17 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         heading_high = 180.0 / grid.heading_scale_deg
         low = np.broadcast_to(np.array([0.0, -heading_high, 0.0], np.float32), grid.shape)
         high = np.broadcast_to(np.array([speed_high, heading_high, 1.0], np.float32), grid.shape)
-        self.observation_space = gym.spaces.Box(low.copy(), high.copy(), dtype=np.float32)
+        grid_space = gym.spaces.Box(low.copy(), high.copy(), dtype=np.float32)
+        self.observation_space: gym.spaces.Box | gym.spaces.Dict = grid_space
+        if config.route_observation:
+            start = config.scenario.ego_start_distance / ROUTE_DISTANCE_SCALE_M
+            end = -config.scenario.arm_length / ROUTE_DISTANCE_SCALE_M
+            route_space = gym.spaces.Box(
+                np.array([0.0, 0.0, 0.0, end], np.float32),
+                np.array([1.0, 1.0, 1.0, start], np.float32),
+                dtype=np.float32,
+            )
+            self.observation_space = gym.spaces.Dict({"grid": grid_space, "route": route_space})
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
 
         self._scenario: Scenario | None = None
@@ -102,6 +118,7 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._steps = 0
         self._done = True
         self._ego_speed = 0.0
+        self._travelled = 0.0
         self._vehicles: list[VehicleState] | None = None
         self._grid = OccupancyGrid(config.grid)
         # The commands since SUMO last started, for restore(): see EnvSnapshot.
@@ -121,7 +138,7 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+    ) -> tuple[Any, dict[str, Any]]:
         """Start an episode. ``options={"task": ...}`` overrides the task for this episode."""
         super().reset(seed=seed)
         task = (options or {}).get("task", self.config.task)
@@ -135,6 +152,7 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._task = task
         self._insert_ego(task)
         self._steps = 0
+        self._travelled = 0.0
         self._done = False
         return self._observe_reset()
 
@@ -161,15 +179,25 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._simulation.set_ego_speed(speed)
         return self._simulation.step()
 
-    def _observe_reset(self) -> tuple[np.ndarray, dict[str, Any]]:
+    def _observe_reset(self) -> tuple[Any, dict[str, Any]]:
         assert self._simulation is not None
         self._vehicles = self._simulation.vehicles()
         ego = _find_ego(self._vehicles)
         if ego is None:
             raise RuntimeError("SUMO did not insert the ego vehicle")
         self._ego_speed = ego.speed
-        observation = self._grid(self._vehicles, ego)
+        observation = self._observation(self._grid(self._vehicles, ego))
         return observation, self._info(collision=False, arrived=False, terms=None)
+
+    def _observation(self, grid: np.ndarray) -> Any:
+        """The grid, or with ``route_observation`` the grid and the ego's route."""
+        if not self.config.route_observation:
+            return grid
+        route = np.zeros(4, np.float32)
+        route[TASKS.index(self._task)] = 1.0
+        distance = self.config.scenario.ego_start_distance - self._travelled
+        route[3] = distance / ROUTE_DISTANCE_SCALE_M
+        return {"grid": grid, "route": route}
 
     def snapshot(self) -> EnvSnapshot:
         """The env's state now, for :meth:`restore` (a look-ahead, for instance).
@@ -188,6 +216,7 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             steps=self._steps,
             done=self._done,
             rng_state=copy.deepcopy(self.np_random.bit_generator.state),
+            travelled=self._travelled,
         )
 
     def restore(self, snapshot: EnvSnapshot) -> None:
@@ -211,6 +240,7 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._task = snapshot.task
         self._steps = snapshot.steps
         self._done = snapshot.done
+        self._travelled = snapshot.travelled
         assert self._simulation is not None
         self._vehicles = self._simulation.vehicles()
         ego = _find_ego(self._vehicles)
@@ -220,9 +250,7 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             else (snapshot.ego_speed_commands[-1] if snapshot.ego_speed_commands else 0.0)
         )
 
-    def step(
-        self, action: np.ndarray
-    ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+    def step(self, action: np.ndarray) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         if self._done or self._simulation is None:
             raise RuntimeError("step() called before reset() or after the episode ended")
         acceleration = float(np.asarray(action, dtype=np.float64).reshape(-1)[0])
@@ -241,12 +269,15 @@ class IntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         arrived = events.ego_arrived and not collision
         if ego is not None:
             self._ego_speed = ego.speed
-            observation = self._grid(vehicles, ego)
+            self._travelled += ego.speed * scenario.step_length  # SUMO's Euler update
+            grid = self._grid(vehicles, ego)
             braking, waiting = self._disturbance(vehicles, ego)
         else:  # arrived: SUMO removed the ego during the step
             self._ego_speed = speed
-            observation = np.zeros(self.observation_space.shape, np.float32)
+            self._travelled += speed * scenario.step_length
+            grid = np.zeros(self.config.grid.shape, np.float32)
             braking = waiting = False
+        observation = self._observation(grid)
         signals = RewardSignals(
             moving=self._ego_speed > self.reward_config.moving_speed,
             others_braking=braking,

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -20,7 +22,8 @@ class GapAcceptancePolicy:
     can still stop short of the lane, it brakes; otherwise it accelerates. Cars moving
     along the ego's heading (after a turn, or behind) are left to SUMO's car following.
 
-    It reads nothing but the observation: no position of its own, no task, no SUMO.
+    It reads nothing but the observation's grid: no position of its own, no task (even
+    where the observation has the route), no SUMO.
     Cars beyond the grid's 80 m reach stay unseen, so some collisions remain.
     """
 
@@ -51,7 +54,9 @@ class GapAcceptancePolicy:
             math.floor(-lon_low / lon_size),
         )
 
-    def __call__(self, observation: np.ndarray) -> np.ndarray:
+    def __call__(self, observation: Any) -> np.ndarray:
+        if isinstance(observation, Mapping):  # the env's route_observation: the grid alone
+            observation = observation["grid"]
         rows, cols = np.nonzero(observation[..., 2] > 0)
         ego_speed = float(observation[self._ego_cell][0]) * self._speed_scale
         for row, col in zip(rows.tolist(), cols.tolist(), strict=True):
