@@ -14,6 +14,7 @@ ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
 WARMUP_POLICIES: tuple[str, ...] = ("uniform", "gap_acceptance")
 GUIDES: tuple[str, ...] = ("none", "gap_acceptance")
 GUIDE_FILTERS: tuple[str, ...] = ("q", "none")
+REPLAYS: tuple[str, ...] = ("uniform", "lap")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
@@ -38,6 +39,9 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "guide_filter": "q",
     "guide_filter_margin": 0.0,
     "guide_residual": False,
+    "replay": "uniform",
+    "lap_alpha": 0.4,
+    "lap_min_priority": 1.0,
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -136,6 +140,16 @@ class DDPGConfig:
     """Share of each batch drawn from the transitions that end an episode (collisions and
     arrivals), the rest uniform; 0: uniform replay (Table II). The few dozen collisions
     a vehicle meets in 10,000 steps then reach the critic in every batch."""
+    replay: str = "uniform"
+    """How batches are drawn: ``uniform`` (Table II), or ``lap``, loss-adjusted prioritised
+    replay (Fujimoto et al. 2020; TD7): in proportion to max(|TD error|, ``lap_min_priority``)
+    ** ``lap_alpha``, new transitions at the largest priority, with a Huber critic loss of
+    threshold ``lap_min_priority`` (:mod:`frl.agents.prioritized`). Collisions are about 0.3%
+    of the transitions; uniform replay rarely shows them to the critic."""
+    lap_alpha: float = 0.4
+    """LAP's exponent of the priorities, in (0, 1] (TD7: 0.4)."""
+    lap_min_priority: float = 1.0
+    """LAP's smallest priority and the Huber loss's threshold, > 0 (TD7: 1)."""
     actor_update: str = "inverting_gradients"
     """How the actor bounds its action and learns: ``tanh`` (DDPG: a tanh output,
     gradients through it), or ``inverting_gradients`` (Hausknecht and Stone 2016): a
@@ -242,6 +256,8 @@ class DDPGConfig:
             "explore_hold_probability",
             "guide_weight",
             "guide_filter_margin",
+            "lap_alpha",
+            "lap_min_priority",
         ):
             value = getattr(self, name)
             _require(
@@ -312,6 +328,19 @@ class DDPGConfig:
             "actor_update=inverting_gradients leave it at 0",
         )
         self._check_guide()
+        _require(
+            self.replay in REPLAYS,
+            f"replay must be one of {', '.join(REPLAYS)}, got {self.replay!r}",
+        )
+        _require(0 < self.lap_alpha <= 1, f"lap_alpha must lie in (0, 1], got {self.lap_alpha}")
+        _require(
+            self.lap_min_priority > 0, f"lap_min_priority must be > 0, got {self.lap_min_priority}"
+        )
+        _require(
+            self.replay == "uniform" or self.terminal_fraction == 0,
+            "replay=lap draws by TD error; terminal_fraction (episode ends in every batch) "
+            "is for uniform replay: set one of them",
+        )
         _require(
             self.encoder in ENCODERS,
             f"encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}",

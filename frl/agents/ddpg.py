@@ -25,6 +25,7 @@ from frl.agents.networks import Actor, Critic, init_mlp_
 from frl.agents.noise import generator_state, make_noise, set_generator_state
 from frl.agents.observations import ObservationLayout, space_from_record
 from frl.agents.precision import autocast, resolve_precision
+from frl.agents.prioritized import lap_critic_loss, lap_priority
 from frl.agents.replay_buffer import Batch, ReplayBuffer
 from frl.agents.sparse_linear import SparseRows
 from frl.agents.vehicle_encoder import VehicleSetEncoder
@@ -190,6 +191,7 @@ class DDPG:
             sparse=compact,
             sparse_width=cfg.sparse_capacity,
             guided=cfg.guided,
+            prioritized=cfg.replay == "lap",
         )
         self._explore_rng = np.random.default_rng(explore_seq)
         self._warmup_action: np.ndarray | None = None
@@ -507,10 +509,17 @@ class DDPG:
         ):
             return {}
         for _ in range(cfg.gradient_steps):
-            batch = self.buffer.sample(
-                cfg.batch_size, self.sparse, self.device, cfg.terminal_fraction
-            )
+            lap = cfg.replay == "lap"
+            if lap:
+                slots = self.buffer.sample_slots_prioritized(cfg.batch_size)
+            else:
+                slots = self.buffer.sample_slots_ends(cfg.batch_size, cfg.terminal_fraction)
+            batch = self.buffer.gather(slots, sparse=self.sparse, device=self.device)
             stats = self._train_step(batch)
+            if lap:
+                td_abs = stats.pop("td_abs").cpu().numpy()
+                priorities = lap_priority(td_abs, cfg.lap_alpha, cfg.lap_min_priority)
+                self.buffer.set_priorities(slots, priorities)
             self.num_updates += 1
         return {name: value.item() for name, value in stats.items()}
 
@@ -534,25 +543,36 @@ class DDPG:
             multi_step = cfg.n_step > 1 or cfg.action_repeat > 1
             discount = cfg.gamma**batch.horizons if multi_step else cfg.gamma
             target_q = td_target(batch.rewards, batch.terminated, next_q, discount)
-        critic_loss = F.mse_loss(q_values[0], target_q)
+        critic_loss = self._critic_loss(q_values[0], target_q)
         for q_other in q_values[1:]:
-            critic_loss = critic_loss + F.mse_loss(q_other, target_q)
+            critic_loss = critic_loss + self._critic_loss(q_other, target_q)
         self.critic_optimizer.zero_grad(set_to_none=True)
         critic_loss.backward()
         if self._proximal_critic:
             self._add_proximal_gradient(self._proximal_critic)
         self.critic_optimizer.step()
         q = q_values[0].detach()
+        td_abs = (q - target_q).abs()
         stats = {
             "critic_loss": critic_loss.detach(),
             "q_mean": q.mean(),
-            "td_error": (q - target_q).abs().mean(),
+            "td_error": td_abs.mean(),
         }
+        if cfg.replay == "lap":  # per transition, the larger critic's error (TD7)
+            for q_other in q_values[1:]:
+                td_abs = torch.maximum(td_abs, (q_other.detach() - target_q).abs())
+            stats["td_abs"] = td_abs
         # TD3's delayed updates: the actor and the targets move every policy_delay-th step.
         if self.num_updates % cfg.policy_delay == 0:
             stats.update(self._actor_step(batch))
             soft_update(self._target_params, self._online_params, cfg.tau)
         return stats
+
+    def _critic_loss(self, q: Tensor, target: Tensor) -> Tensor:
+        """The squared TD error (Table II), or LAP's Huber loss under ``replay=lap``."""
+        if self.config.replay == "lap":
+            return lap_critic_loss(q, target, self.config.lap_min_priority)
+        return F.mse_loss(q, target)
 
     def _residual_base(self, guide_actions: Tensor | None) -> Tensor | None:
         """The teacher's actions a residual actor adds to; None for any other actor."""

@@ -253,9 +253,7 @@ class VehicleClient:
 
     def _critic_bias(self) -> float:
         """Mean Q(s_t, a_t) - G_t over the episode that just terminated (critic bias)."""
-        q = self.agent.critic_values(
-            self._episode_observations, np.stack(self._episode_actions)
-        )
+        q = self.agent.critic_values(self._episode_observations, np.stack(self._episode_actions))
         returns = discounted_returns(self._episode_rewards, self.agent.config.gamma)
         return float(np.mean(q - returns))
 
