@@ -91,7 +91,8 @@ def verdicts(records: list[RunRecord]) -> list[str]:
          f"{rule['average_reward'].mean:+.2f}"),
         ("collisions <= the rule's", rule["collision_rate"].mean <= 0,
          f"{100 * rule['collision_rate'].mean:+.1f} pp"),
-        ("arrivals >= 95%", mean["arrival_rate"] >= GOAL["arrivals"], f"{mean['arrival_rate']:.1%}"),
+        ("arrivals >= 95%", mean["arrival_rate"] >= GOAL["arrivals"],
+         f"{mean['arrival_rate']:.1%}"),
         ("no task > rule + 3 pp", worst_gap <= GOAL["task collisions over the rule"],
          f"{worst_task} {100 * worst_gap:+.1f} pp"),
     ]  # fmt: skip
