@@ -12,10 +12,13 @@ process and on the same threads: ``pip install -c constraints.txt -e '.[bench]'`
 frl's figures and says how to add the comparison.
 
     python benchmarks/agent_speed.py [--blocks 16] [--threads N] [--profile]
-        [--precisions float32,bf16] [--option n_step=1 ...] [--dense] [--skip-sb3]
-        [--skip-floor]
+        [--precisions float32,bf16] [--option n_step=1 ...] [--variant "NAME KEY=VALUE ..."]
+        [--dense] [--skip-sb3] [--skip-floor]
 
-``--option KEY=VALUE`` sets a DDPGConfig field of the frl agents (repeatable). frl's
+``--option KEY=VALUE`` sets a DDPGConfig field of the frl agents (repeatable);
+``--variant "NAME KEY=VALUE ..."`` adds a row of the default agent with those fields
+(repeatable; ``guide=gap_acceptance`` installs the rule as its teacher, and
+``env.route_observation=true`` gives it the route beside each grid). frl's
 rows are Table II's agent (``agent=ddpg-paper``: one-step targets, an MLP on the flat
 grid, a tanh actor) at each precision and frl's default agent (``agent=ddpg``: 5-step
 targets, held warm-up actions, the vehicles encoder, inverting gradients) at its default
@@ -47,7 +50,8 @@ from omegaconf import OmegaConf
 from frl.agents import DDPG, DDPGConfig, ReplayBuffer
 from frl.agents.functional import soft_update
 from frl.agents.precision import has_native_bf16, resolve_precision
-from frl.envs import TASKS, IntersectionEnv
+from frl.envs import TASKS, EnvConfig, IntersectionEnv
+from frl.policies import install_guide
 
 # The helpers beside this script, also under PYTHONSAFEPATH=1 (docs/reproduction.md).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -132,12 +136,25 @@ class Learner:
 class FrlLearner(Learner):
     """An frl DDPG: act + observe + update per step, after ``learning_starts`` + 50."""
 
-    def __init__(self, label: str, config: DDPGConfig, scenes: RecordedScenes) -> None:
+    def __init__(
+        self, label: str, config: DDPGConfig, scenes: RecordedScenes, route: bool = False
+    ) -> None:
         self.label = label
-        obs_space = spaces.Box(-2.0, 2.0, GRID_SHAPE, dtype=np.float32)
+        obs_space: spaces.Space = spaces.Box(-2.0, 2.0, GRID_SHAPE, dtype=np.float32)
+        if route:  # the env's route_observation: the straight task, 10 m before the line
+            route_space = spaces.Box(-10.0, 1.0, (4,), dtype=np.float32)
+            obs_space = spaces.Dict({"grid": obs_space, "route": route_space})
         act_space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
         self.agent = DDPG(obs_space, act_space, config, seed=0)
-        self.next_scene = scenes.replay()
+        install_guide(self.agent, EnvConfig())
+        grids = scenes.replay()
+        route_part = np.array([0.0, 1.0, 0.0, 1.0], np.float32)
+
+        def with_route() -> tuple[object, float, bool]:
+            grid, reward, terminated = grids()
+            return {"grid": grid, "route": route_part}, reward, terminated
+
+        self.next_scene = with_route if route else grids
         self.obs = self.next_scene()[0]
         for _ in range(config.learning_starts + 50):
             self.step()
@@ -355,6 +372,20 @@ def parse_options(parser: argparse.ArgumentParser, items: list[str]) -> dict:
     return options
 
 
+ROUTE_KEY = "env.route_observation"
+
+
+def parse_variant(parser: argparse.ArgumentParser, text: str) -> tuple[str, dict, bool]:
+    """``"NAME KEY=VALUE ..."``: the row's name, its DDPGConfig fields, and whether it
+    observes the route (``env.route_observation=true``)."""
+    name, *items = text.split()
+    if not name or "=" in name:
+        parser.error(f"--variant {text!r}: a variant starts with its name")
+    route = f"{ROUTE_KEY}=true" in items
+    items = [item for item in items if not item.startswith(f"{ROUTE_KEY}=")]
+    return name, parse_options(parser, items), route
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--blocks", type=int, default=16, help=f"timed blocks of {BLOCK} steps")
@@ -368,8 +399,13 @@ def main() -> None:
     parser.add_argument(
         "--option", action="append", default=[], metavar="KEY=VALUE", help="a DDPGConfig field"
     )
+    parser.add_argument(
+        "--variant", action="append", default=[], metavar='"NAME KEY=VALUE ..."',
+        help="a row of the default agent with these fields",
+    )  # fmt: skip
     args = parser.parse_args()
     options = parse_options(parser, args.option)
+    variants = [parse_variant(parser, text) for text in args.variant]
     precisions = args.precisions.split(",")
     for name in precisions:
         resolve_precision(name, "cpu")  # an unknown name fails here, before any timing
@@ -406,6 +442,12 @@ def main() -> None:
     learners.append(
         FrlLearner(f"frl, default agent, {default.precision}{resolved}", default, scenes)
     )
+    for name, fields, route in variants:
+        try:
+            variant = config(**{**options, **fields})
+        except ValueError as error:
+            parser.error(f"--variant {name}: {error}")
+        learners.append(FrlLearner(f"frl, default agent + {name}", variant, scenes, route))
     if args.dense:
         dense = config(**{**TABLE_II, **options, "sparse_input": False})
         learners.append(FrlLearner("frl, Table II agent, dense first layer", dense, scenes))
