@@ -315,6 +315,7 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
     if threads < 0:
         raise ConfigError(f"federation.threads_per_worker must be >= 0, got {threads!r}")
     cores = _check_cores(data["cores"])
+    device = check_device(data["device"])
     try:
         plan = FederationPlan(
             scheme=federation["scheme"],
@@ -359,7 +360,7 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
         seed=data["seed"],
         eval_episodes=data["eval_episodes"],
         yardsticks=yardsticks,
-        device=data["device"],
+        device=device,
         backend=federation["backend"],
         worker_timeout_s=timeout,
         threads_per_worker=threads or None,
@@ -405,6 +406,39 @@ def _vehicle_envs(
                 raise ConfigError(f"federation.vehicle_arrival_period_steps: {error}") from None
         envs.append(dataclasses.replace(env, scenario=scenario))
     return tuple(envs)
+
+
+def check_device(name: str) -> str:
+    """``name`` if torch can use that device here, else a one-line :class:`ConfigError`.
+
+    The networks and their updates run on it; SUMO and the replay buffer's storage stay
+    on the CPU (docs/training.md). Checked before any run directory or process exists.
+    """
+    import torch
+
+    try:
+        device = torch.device(name)
+    except (RuntimeError, ValueError) as error:
+        first = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ConfigError(f"device={name!r} is not a torch device ({first})") from None
+    if device.type == "cpu":
+        return name
+    backend = getattr(torch, device.type, None)
+    is_available = getattr(backend, "is_available", None)
+    if not callable(is_available) or not is_available():
+        raise ConfigError(
+            f"device={name!r}: torch here has no usable {device.type} device "
+            f"(torch {torch.__version__}); use device=cpu"
+        )
+    count = getattr(backend, "device_count", None)
+    available = count() if callable(count) else 1
+    if device.index is not None and device.index >= available:
+        raise ConfigError(
+            f"device={name!r}: this machine has {available} {device.type} "
+            f"device{'s' * (available != 1)} ({device.type}:0"
+            f"{f' to {device.type}:{available - 1}' if available > 1 else ''})"
+        )
+    return name
 
 
 def _check_cores(cores: int) -> int | None:

@@ -66,11 +66,31 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("federation=bogus", "federation/bogus"),
         ("nonsense", "Error parsing override 'nonsense'"),
         ("eval_episodes=-1", "eval_episodes must be a non-negative integer"),
+        ("device=gpu0", "device='gpu0' is not a torch device"),
+        ("agent.guide=oracle", "guide must be one of none, gap_acceptance"),
+        ("agent.replay=per", "replay must be one of uniform, lap"),
+        ("env.route_observation=maybe", "route_observation"),
     ],
 )
 def test_a_bad_override_to_frl_train(run_cli, override, text, tmp_path):
     result = run_cli("frl.train", override, f"run_dir={tmp_path / 'run'}", cwd=tmp_path)
     assert_one_line_error(result, "frl.train: config error:", text)
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_device_torch_cannot_use_here_is_refused_before_any_directory(
+    run_cli, tmp_path, monkeypatch
+):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    result = run_cli("frl.train", "device=cuda", f"run_dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert_one_line_error(result, "frl.train: config error:", "no usable cuda device")
+    assert not (tmp_path / "run").exists()
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    result = run_cli("frl.train", "device=cuda:3", f"run_dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert_one_line_error(result, "frl.train: config error:", "has 1 cuda device (cuda:0)")
     assert not (tmp_path / "run").exists()
 
 

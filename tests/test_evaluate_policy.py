@@ -1,5 +1,9 @@
 """evaluate_policy: any driver on frl's test protocol, beside the yardsticks."""
 
+import os
+import subprocess
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -73,3 +77,28 @@ def test_a_stable_baselines3_td3_trains_on_the_env_and_is_scored():
     scored = evaluate_policy(model, episodes=2, tasks=["left"], yardsticks=("full_throttle",))
     assert scored["per_task"]["left"]["episodes"] == 2
     assert set(scored["yardsticks"]) == {"full_throttle"}
+
+
+PLAIN_SCRIPT = """
+import numpy as np
+from frl.evaluate import evaluate_policy
+
+table = evaluate_policy(lambda o: np.array([1.0], np.float32), episodes=2)
+print("average return", table["average"]["average_reward"])
+"""
+
+
+def test_the_readme_call_works_in_a_plain_script_without_a_main_guard(tmp_path):
+    """The yardsticks run in spawned workers; they must not run the caller's script again."""
+    script = tmp_path / "score.py"
+    script.write_text(PLAIN_SCRIPT)
+    # An empty cache: every yardstick runs, in worker processes.
+    env = {**os.environ, "FRL_CACHE_DIR": str(tmp_path / "cache")}
+    result = subprocess.run(
+        [sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
+        timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    assert result.stdout.count("average return") == 1  # the script ran once, not per worker
+    assert "oracle (same seeds)" in result.stdout

@@ -33,6 +33,7 @@ import subprocess
 import sys
 import time
 import traceback
+import types
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
@@ -245,6 +246,29 @@ def _worker_main(conn: Connection, name: str, factory: Callable[[], Any], num_th
         conn.close()
 
 
+@contextlib.contextmanager
+def _caller_script_hidden() -> Any:
+    """Spawn workers that do not import the caller's script.
+
+    A spawned process imports the parent's ``__main__`` script (as ``__mp_main__``) before
+    it unpickles its target, and so runs the script's top level again: a plain script
+    without ``if __name__ == "__main__":`` that calls :func:`frl.evaluate.evaluate_policy`
+    would start the evaluation anew in every worker, and multiprocessing refuses with its
+    "freeze_support" error. frl's workers host frl's own objects, which need nothing of
+    that script, so while they start ``__main__`` is an empty module: the children have no
+    script to import. A notebook, whose ``__main__`` has no file, is unaffected.
+    """
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        if main is None:
+            del sys.modules["__main__"]
+        else:
+            sys.modules["__main__"] = main
+
+
 class WorkerPool:
     """Spawned worker processes, each hosting ``factory()`` for one named client.
 
@@ -300,22 +324,26 @@ class WorkerPool:
         """Spawn the workers and wait until each has built its object."""
         context = mp.get_context("spawn")
         try:
-            for name, factory in zip(self.names, self._factories, strict=True):
-                parent_end, child_end = context.Pipe(duplex=True)
-                process = context.Process(
-                    target=_worker_main,
-                    args=(child_end, name, factory, self.num_threads),
-                    name=f"frl-{name}",
-                    daemon=True,
-                )
-                process.start()
-                child_end.close()
-                self._processes.append(process)
-                self._connections.append(parent_end)
+            with _caller_script_hidden():
+                self._spawn(context)
             self._collect(range(len(self.names)), expect="ready", timeout_s=self.start_timeout_s)
         except BaseException:
             self.close(graceful=False)
             raise
+
+    def _spawn(self, context: Any) -> None:
+        for name, factory in zip(self.names, self._factories, strict=True):
+            parent_end, child_end = context.Pipe(duplex=True)
+            process = context.Process(
+                target=_worker_main,
+                args=(child_end, name, factory, self.num_threads),
+                name=f"frl-{name}",
+                daemon=True,
+            )
+            process.start()
+            child_end.close()
+            self._processes.append(process)
+            self._connections.append(parent_end)
 
     def call(
         self,
