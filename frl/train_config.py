@@ -78,6 +78,11 @@ def schema_of(
             specs.append(_schema_field(library_field.name, _schema_type(kind), value))
     specs += [_schema_field(*extra) for extra in trailing]
     schema = dataclasses.make_dataclass(name, specs)
+    # Importable by name: a config pickled into another process (a Hydra launcher's job)
+    # must find this very class there, not a copy that OmegaConf would refuse to merge.
+    schema.__module__ = __name__
+    if globals().setdefault(name, schema) is not schema:
+        raise RuntimeError(f"two Hydra schemas named {name}")
     schema.__doc__ = (
         f"The Hydra schema of :class:`{library_class.__module__}.{library_class.__name__}`."
     )

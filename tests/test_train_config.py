@@ -146,3 +146,22 @@ def test_resume_needs_a_run(tmp_path):
     cfg = compose_config(tmp_path / "run", [f"resume={tmp_path / 'nothing'}"])
     with pytest.raises(ConfigError, match="no checkpointed run there"):
         train(cfg)
+
+
+def test_a_config_pickled_into_another_process_still_merges_with_the_schema():
+    """A Hydra launcher (submitit, Ray) pickles the composed config into each job: the
+    generated schema classes must arrive as themselves, not as copies OmegaConf refuses."""
+    import pickle
+    import subprocess
+    import sys
+
+    cfg = compose_config(None, ["seed=3"])
+    script = (
+        "import pickle, sys; from frl.train_config import validate; "
+        "print(validate(pickle.loads(sys.stdin.buffer.read())).seed)"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script], input=pickle.dumps(cfg), capture_output=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr.decode()[-2000:]
+    assert result.stdout.decode().strip() == "3"
