@@ -3,14 +3,15 @@
     python benchmarks/agent_study.py --variant base \\
         --variant "vehicles agent.encoder=vehicles" [--variant "NAME OVERRIDE ..."] \\
         [--task left] [--scheme separate] [--seeds 0,1,2] [--jobs 2] [--out runs/study] \\
-        [--data-dir docs/results/data/study-left] [-- OVERRIDES FOR EVERY RUN]
+        [--data-dir docs/results/data/study-left] [--launcher ray] [-- OVERRIDES FOR EVERY RUN]
 
 Each variant is a name and Hydra overrides. Every (variant, seed) trains one vehicle on
 ``--task`` (Sep-DDPG with that task alone: the left turn is the hardest task, about
 3.5 min a run at the paper's budget in float32) and tests it on the task's 100 test
 episodes, where full throttle, the gap-acceptance driver and the oracle drive the very
 same traffic. ``--scheme fedavg`` trains the three-vehicle FedAvg-DDPG instead, tested on
-every task. Runs go ``--jobs`` at a time, each on its share of the cores, and are
+every task. Runs go ``--jobs`` at a time, each on its share of the cores (or through a
+Hydra launcher, ``--launcher``, as in benchmarks/learning.py), and are
 resumable (``resume=auto``: a finished run is read back). With ``--data-dir`` each
 finished run's small result files are kept there.
 
@@ -27,7 +28,15 @@ from pathlib import Path
 
 # The helpers beside this script, also under PYTHONSAFEPATH=1 (docs/reproduction.md).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paired_runs import Run, load_groups, print_runs, print_summary, train_all
+from paired_runs import (
+    Run,
+    add_launcher_arguments,
+    launcher_argument,
+    load_groups,
+    print_runs,
+    print_summary,
+    train_all,
+)
 
 
 def parse_variant(text: str) -> tuple[str, list[str]]:
@@ -46,10 +55,12 @@ def main() -> None:
     parser.add_argument("--task", default="left")
     parser.add_argument("--scheme", default="separate", choices=("separate", "fedavg"))
     parser.add_argument("--seeds", default="0,1,2")
-    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--jobs", type=int, default=None, help="runs at a time here (2)")
     parser.add_argument("--out", type=Path, default=Path("runs/study"))
     parser.add_argument("--data-dir", type=Path, default=None)
+    add_launcher_arguments(parser)
     args = parser.parse_args(argv)
+    launcher = launcher_argument(args, parser)
     seeds = [int(s) for s in args.seeds.split(",")]
     names = [name for name, _ in args.variant]
     if len(set(names)) != len(names):
@@ -63,7 +74,7 @@ def main() -> None:
         for seed in seeds
     ]
     try:
-        train_all(runs, args.jobs, args.out / "logs")
+        train_all(runs, args.jobs or 2, args.out / "logs", launcher)
     except ValueError as error:
         parser.error(str(error))
     groups = load_groups(runs, args.data_dir)

@@ -2,10 +2,13 @@
 
     python benchmarks/learning.py [--schemes central,separate,fedavg] [--seeds 0,1,2,3,4]
         [--jobs 1] [--out runs/learning] [--data-dir DIR] [-- HYDRA_OVERRIDES...]
+    python benchmarks/learning.py --launcher submitit_slurm -- hydra.launcher.partition=cpu
 
 Trains each scheme at each seed with ``python -m frl.train`` (default config: the paper's
 budget and traffic; overrides after ``--`` go to every run), ``--jobs`` at a time, each
-resumable (``resume=auto``: a finished run is read back, a killed one continues). Then
+resumable (``resume=auto``: a finished run is read back, a killed one continues); with
+``--launcher`` through a Hydra launcher instead (a SLURM job or Ray task per run,
+``--cores-per-job`` CPUs each; docs/reproduction.md, "On a cluster"). Then
 prints each run's test table averaged over the tasks beside full throttle, the
 gap-acceptance driver and the oracle on the same seeds; per scheme the means with 95% t
 intervals over seeds and the differences paired seed by seed against FedAvg-DDPG, full
@@ -22,7 +25,16 @@ from pathlib import Path
 
 # The helpers beside this script, also under PYTHONSAFEPATH=1 (docs/reproduction.md).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paired_runs import Run, load_groups, model_metric, print_runs, print_summary, train_all
+from paired_runs import (
+    Run,
+    add_launcher_arguments,
+    launcher_argument,
+    load_groups,
+    model_metric,
+    print_runs,
+    print_summary,
+    train_all,
+)
 
 SCHEMES = ("central", "separate", "fedavg")
 BAR = {"average_reward": 6.0, "collision_rate": 0.09, "arrival_rate": 0.90, "worst_seed": 5.5}
@@ -35,10 +47,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--schemes", default=",".join(SCHEMES))
     parser.add_argument("--seeds", default="0,1,2,3,4")
-    parser.add_argument("--jobs", type=int, default=1)
+    parser.add_argument("--jobs", type=int, default=None, help="runs at a time here (1)")
     parser.add_argument("--out", type=Path, default=Path("runs/learning"))
     parser.add_argument("--data-dir", type=Path, default=None)
+    add_launcher_arguments(parser)
     args = parser.parse_args(argv)
+    launcher = launcher_argument(args, parser)
     schemes = args.schemes.split(",")
     unknown = [s for s in schemes if s not in SCHEMES]
     if unknown:
@@ -52,7 +66,7 @@ def main() -> None:
         for seed in seeds
     ]
     try:
-        train_all(runs, args.jobs, args.out / "logs")
+        train_all(runs, args.jobs or 1, args.out / "logs", launcher)
     except ValueError as error:
         parser.error(str(error))
     groups = load_groups(runs, args.data_dir)

@@ -9,11 +9,14 @@ it met the same traffic. The intervals need SciPy: ``pip install -c constraints.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from frl.launchers import LAUNCHERS, launcher_overrides
+from frl.launchers import cores_per_job as launcher_cores
 from frl.report.measures import PerSeed, paired, per_seed
 from frl.report.runs import RunRecord, export_run, has_complete_results, load_run
 from frl.report.stats import Estimate, mean_ci
@@ -38,22 +41,81 @@ class Run:
     overrides: tuple[str, ...]
 
 
-def train_all(runs: Sequence[Run], jobs: int, log_dir: Path) -> None:
-    """Train (and test) every run not finished yet, ``jobs`` at a time, each on its share
-    of the cores; resumable (``resume=auto``)."""
-    cores = cores_per_job(jobs)
+def train_all(
+    runs: Sequence[Run], jobs: int, log_dir: Path, launcher: list[str] | None = None
+) -> None:
+    """Train (and test) every run not finished yet; resumable (``resume=auto``).
+
+    On this machine ``jobs`` at a time, each on its share of the cores. With ``launcher``
+    (:func:`launcher_argument`'s overrides) each group's unfinished seeds are one Hydra
+    multirun whose jobs the launcher places (a SLURM job or Ray task per run, in the same
+    run directories); the groups' multiruns are submitted together."""
     todo = [run for run in runs if not has_complete_results(run.run_dir)]
+    if not todo:
+        return
+    if launcher:
+        _train_through_launcher(todo, log_dir, launcher)
+        return
+    cores = cores_per_job(jobs)
     commands = []
     for run in todo:
         command = [sys.executable, "-m", "frl.train", f"seed={run.seed}", f"run_dir={run.run_dir}",
                    "resume=auto", "progress=false", *run.overrides]  # fmt: skip
         commands.append(with_cores(command, cores))
     labels = [f"{run.group}-seed{run.seed}" for run in todo]
-    if not commands:
-        return
-    for outcome in run_side_by_side(commands, jobs, log_dir, labels):
+    _report(run_side_by_side(commands, jobs, log_dir, labels))
+
+
+def _train_through_launcher(todo: Sequence[Run], log_dir: Path, launcher: list[str]) -> None:
+    groups: dict[tuple[str, Path, tuple[str, ...]], list[int]] = {}
+    for run in todo:
+        if run.run_dir.name != f"{run.group}-seed{run.seed}":
+            raise ValueError(f"{run.run_dir}: a launcher's sweep names its runs GROUP-seedN")
+        groups.setdefault((run.group, run.run_dir.parent, run.overrides), []).append(run.seed)
+    commands, labels = [], []
+    for (group, out, overrides), seeds in groups.items():
+        commands.append([
+            sys.executable, "-m", "frl.train", "-m", *launcher,
+            f"seed={','.join(map(str, seeds))}", f"hydra.sweep.dir={out}",
+            f"hydra.sweep.subdir={group}-seed${{seed}}", "resume=auto", "progress=false",
+            *overrides,
+        ])  # fmt: skip
+        labels.append(group)
+    _report(run_side_by_side(commands, len(commands), log_dir, labels))
+
+
+def _report(outcomes: Sequence[object]) -> None:
+    for outcome in outcomes:
         status = "ok" if outcome.returncode == 0 else f"FAILED, see {outcome.log_path}"
         print(f"{outcome.label}: {outcome.wall_s / 60:.1f} min, {status}", file=sys.stderr)
+
+
+def add_launcher_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--launcher NAME`` and ``--cores-per-job N``, as ``frl.reproduce`` has them."""
+    parser.add_argument("--launcher", default=None,
+                        help=f"train through a Hydra launcher: {', '.join(LAUNCHERS)} "
+                        "(pip install -c constraints.txt -e '.[cluster]')")  # fmt: skip
+    parser.add_argument(
+        "--cores-per-job",
+        type=int,
+        default=None,
+        help=f"CPUs each launcher job asks for and uses ({launcher_cores()})",
+    )
+
+
+def launcher_argument(args: argparse.Namespace, parser: argparse.ArgumentParser) -> list[str]:
+    """The launcher overrides the arguments ask for ([] for this machine), or a usage error."""
+    if args.launcher is None:
+        if args.cores_per_job is not None:
+            parser.error("--cores-per-job is for --launcher; on this machine --jobs shares cores")
+        return []
+    if args.jobs not in (None, 1):
+        parser.error("--jobs shares this machine's cores; with --launcher leave it out")
+    try:
+        return launcher_overrides(args.launcher, args.cores_per_job or launcher_cores())
+    except ValueError as error:
+        parser.error(str(error))
+    return []
 
 
 def load_groups(runs: Sequence[Run], data_dir: Path | None = None) -> dict[str, list[RunRecord]]:

@@ -5,6 +5,8 @@
     python -m frl.reproduce --dry-run                  # print the commands only
     python -m frl.reproduce --export-only              # export finished runs, rebuild report
     python -m frl.reproduce --jobs 2                   # two runs at a time, a core each
+    python -m frl.reproduce --launcher submitit_slurm -- hydra.launcher.partition=cpu
+    python -m frl.reproduce --launcher ray -- hydra.launcher.ray.init.address=auto
 
 Each figure is one Hydra multirun, ``python -m frl.train -m +experiment=figN``, whose
 preset (frl/conf/experiment/) fixes the sweep, a deterministic directory per job
@@ -16,7 +18,9 @@ The preset's :class:`ExportRun` callback copies each finished run's small result
 to ``DATA_DIR/<figure>/<run>/`` as soon as it ends, and the report is built from those
 files. Everything goes under ``outputs/repro/`` unless told otherwise; the published
 results are rebuilt with ``--data-dir docs/results/data --report docs/results.md``.
-Ctrl-C stops the sweep; the next call picks up where it was.
+Ctrl-C stops the sweep; the next call picks up where it was. With ``--launcher`` each
+figure's multirun hands its jobs to a Hydra launcher (SLURM, Ray; ``frl.launchers``),
+every job on ``--cores-per-job`` CPUs, and the same command resumes it.
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ from hydra.experimental.callback import Callback
 
 from frl.cli import OneLineParser
 from frl.fileio import read_json
+from frl.launchers import LAUNCHERS, launcher_overrides
+from frl.launchers import cores_per_job as launcher_cores
 from frl.report.collect import FIGURE_DIRS
 from frl.report.runs import RunDataError, export_run, exported_results, has_complete_results
 from frl.run_directory import RESULTS_FILE
@@ -193,6 +199,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=1,
                         help="runs at a time, each on its share of the cores "
                         "(%(default)s)")  # fmt: skip
+    parser.add_argument("--launcher", default=None,
+                        help=f"run each figure's jobs through a Hydra launcher: "
+                        f"{', '.join(LAUNCHERS)} (pip install '.[cluster]')")  # fmt: skip
+    parser.add_argument("--cores-per-job", type=int, default=None,
+                        help="CPUs each launcher job asks for and uses (default: one per "
+                        f"vehicle plus one, {launcher_cores()})")  # fmt: skip
     parser.add_argument("--dry-run", action="store_true", help="print the commands and stop")
     parser.add_argument("--export-only", action="store_true",
                         help="run nothing: export finished runs, build the report")  # fmt: skip
@@ -207,6 +219,17 @@ def main(argv: list[str] | None = None) -> int:
         cores = cores_per_job(args.jobs)
     except ValueError as error:
         parser.error(f"--jobs: {error}")
+    launcher: list[str] = []
+    if args.launcher is not None:
+        if args.jobs != 1:
+            parser.error("--jobs runs jobs side by side on this machine; with --launcher the "
+                         "launcher places them: leave --jobs out")  # fmt: skip
+        try:
+            launcher = launcher_overrides(args.launcher, args.cores_per_job or launcher_cores())
+        except ValueError as error:
+            parser.error(str(error))
+    elif args.cores_per_job is not None:
+        parser.error("--cores-per-job is for --launcher; side by side, --jobs shares the cores")
     if args.runs_dir.exists() and not args.runs_dir.is_dir():
         parser.error(f"--runs-dir {args.runs_dir} is not a directory")
     if not args.no_report and not args.dry_run:
@@ -223,7 +246,8 @@ def main(argv: list[str] | None = None) -> int:
                                             args.overrides, cores)]  # fmt: skip
         commands = [command for _, command in labelled]
     else:
-        commands = [sweep_command(s, seeds, args.runs_dir, args.data_dir, args.overrides)
+        commands = [sweep_command(s, seeds, args.runs_dir, args.data_dir,
+                                  [*launcher, *args.overrides])
                     for s in sweeps]  # fmt: skip
     if args.dry_run:
         for command in commands:

@@ -97,6 +97,8 @@ def override_error(argv: list[str]) -> str | None:
     value by value, each composed config also by :func:`frl.train_config.validate`, so a
     bad value is refused before Hydra creates any run directory; a command line with
     Hydra's own flags (``--help``, ``--cfg``, ``--config-dir``, ...) is left to Hydra.
+    A sweep sent to another launcher (``hydra/launcher=submitit_slurm``, ``ray``) runs
+    its jobs elsewhere: their ``cores`` and ``device`` are checked where they run.
     """
     from hydra import compose, initialize_config_module
     from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -110,6 +112,7 @@ def override_error(argv: list[str]) -> str | None:
         parsed = OverridesParser.create().parse_overrides(lines)
     except HydraException as error:
         return one_line_error(error)
+    launcher = next((str(o.value()) for o in parsed if o.key_or_group == "hydra/launcher"), "basic")
     first, variants = [], []
     for override in parsed:
         if override.key_or_group.startswith("hydra."):
@@ -126,7 +129,7 @@ def override_error(argv: list[str]) -> str | None:
         for overrides in candidates:
             try:
                 cfg = compose(config_name="config", overrides=overrides)
-                validate(cfg)
+                validate(cfg, this_machine=launcher == "basic")
                 _check_resumed_directory(cfg.resume)
             except (HydraException, OmegaConfBaseException) as error:
                 return one_line_error(error)

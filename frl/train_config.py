@@ -279,10 +279,14 @@ class TrainSettings:
         ]
 
 
-def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
+def validate(
+    cfg: DictConfig | TrainSchema | dict[str, Any], this_machine: bool = True
+) -> TrainSettings:
     """Check ``cfg`` and build the library configs; :class:`ConfigError` names the problem.
 
-    Keys ``cfg`` leaves out take the schema's defaults.
+    Keys ``cfg`` leaves out take the schema's defaults. ``this_machine``: also check that
+    ``cores`` and ``device`` exist here; a sweep submitted to a cluster (a Hydra launcher)
+    leaves those to the machine each job runs on, which checks them before it trains.
     """
     data = _complete(cfg)
     federation = data["federation"]
@@ -319,8 +323,8 @@ def validate(cfg: DictConfig | TrainSchema | dict[str, Any]) -> TrainSettings:
     threads = federation["threads_per_worker"]
     if threads < 0:
         raise ConfigError(f"federation.threads_per_worker must be >= 0, got {threads!r}")
-    cores = _check_cores(data["cores"])
-    device = check_device(data["device"])
+    cores = _check_cores(data["cores"], this_machine)
+    device = check_device(data["device"]) if this_machine else data["device"]
     try:
         plan = FederationPlan(
             scheme=federation["scheme"],
@@ -446,12 +450,12 @@ def check_device(name: str) -> str:
     return name
 
 
-def _check_cores(cores: int) -> int | None:
+def _check_cores(cores: int, this_machine: bool = True) -> int | None:
     """``cores`` as the run's core budget (None: all), or a ConfigError."""
     available = available_cores()
     if cores < 0:
         raise ConfigError(f"cores must be >= 0 (0: all {available} available), got {cores!r}")
-    if cores > available:
+    if cores > available and this_machine:
         # More threads than cores is the slowdown this setting exists to prevent.
         raise ConfigError(f"cores={cores} exceeds the {available} cores available to this process")
     return cores or None
