@@ -194,3 +194,29 @@ def test_multirun_over_two_seeds_in_a_subprocess(tmp_path):
         assert (job / ".hydra" / "config.yaml").exists()
         assert any((job / "tb").iterdir())
     assert "step/s" not in done.stderr  # no progress bar in multirun
+
+
+def test_a_guided_route_observing_lap_agent_trains_and_tests(tmp_path):
+    """The learning options of the driver study through the whole pipeline: a teacher
+    installed in every vehicle, Dict observations in the vehicles' agents, prioritised
+    replay, and a residual actor that drives through its teacher at the test."""
+    overrides = [
+        "agent=ddpg-guided", "agent.guide_residual=true", "agent.replay=lap",
+        "env.route_observation=true", "agent.encoder=vehicles", "yardsticks=[gap_acceptance]",
+    ]  # fmt: skip
+    cfg = compose_config(tmp_path / "run", overrides)
+    results = train(cfg)
+    tags = _scalar_tags(tmp_path / "run")
+    assert "client1_straight/imitation_loss" in tags and "client1_straight/guide_share" in tags
+    evaluation = results["evaluation"]
+    assert evaluation["average"]["episodes"] == 6
+    rule = evaluation["yardsticks"]["gap_acceptance"]["average"]
+    assert rule["episodes"] == 6
+    from frl.agents import DDPG
+
+    model = DDPG.load(next((tmp_path / "run" / "models").glob("*.pt")))
+    assert model.config.guide_residual and model.layout.parts == {
+        "grid": (26, 18, 3),
+        "route": (4,),
+    }
+    assert model.config.replay == "lap" and model.buffer.prioritized
