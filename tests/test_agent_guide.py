@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 from gymnasium import spaces
+from test_agent_options import feed
 
 from frl.agents import DDPG, DDPGConfig
 from frl.agents.guide import guide_weight_at, imitation_loss, q_filter, residual_action
@@ -34,17 +35,6 @@ def guided(**options: object) -> DDPGConfig:
 def brake_when_crowded(observation: np.ndarray) -> np.ndarray:
     """A teacher that brakes when the first cell is occupied, else goes: -1 or +1."""
     return np.array([-1.0 if observation.reshape(-1)[0] > 0.5 else 1.0], np.float32)
-
-
-def feed(agent: DDPG, steps: int, seed: int = 0) -> list[dict[str, float]]:
-    rng = np.random.default_rng(seed)
-    losses = []
-    agent.episode_start()
-    for t in range(steps):
-        o, o2 = (rng.uniform(0, 1, GRID.shape).astype(np.float32) for _ in range(2))
-        agent.observe(o, agent.act(o), float(rng.normal()), o2, terminated=t % 5 == 4)
-        losses.append(agent.update())
-    return losses
 
 
 def test_the_imitation_weight_falls_linearly_to_zero():
