@@ -59,9 +59,7 @@ def test_a_sweep_for_a_launcher_leaves_cores_and_device_to_the_machines_that_run
         ("ray", "hydra_plugins.hydra_ray_launcher"),
     ],
 )
-def test_a_two_job_sweep_through_a_launcher_finishes_resumes_and_compares(
-    launcher, plugin, tmp_path
-):
+def test_a_two_job_sweep_through_a_launcher_finishes_and_compares(launcher, plugin, tmp_path):
     if importlib.util.find_spec(plugin) is None:
         pytest.skip(f"{plugin} is not installed (the cluster extra)")
     sweep = tmp_path / "sweep"
@@ -83,11 +81,13 @@ def test_a_two_job_sweep_through_a_launcher_finishes_resumes_and_compares(
     results = [json.loads((r / "results.json").read_text()) for r in runs]
     assert [r["seed"] for r in results] == [0, 1]
     assert all(r["training"]["steps_per_client"] == 240 and r["evaluation"] for r in results)
-    stamps = [(r / "results.json").stat().st_mtime_ns for r in runs]
-
-    again = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
-    assert again.returncode == 0, again.stderr[-3000:]
-    assert [(r / "results.json").stat().st_mtime_ns for r in runs] == stamps  # skipped
+    if launcher == "submitit_local":  # the same skipping whatever the launcher: once
+        stamps = [(r / "results.json").stat().st_mtime_ns for r in runs]
+        again = subprocess.run(
+            command, cwd=REPO, env=env, capture_output=True, text=True, timeout=900
+        )
+        assert again.returncode == 0, again.stderr[-3000:]
+        assert [(r / "results.json").stat().st_mtime_ns for r in runs] == stamps  # skipped
 
     report = subprocess.run(
         [sys.executable, "-m", "frl.report.compare", *map(str, runs)],
