@@ -11,7 +11,13 @@ from gymnasium import spaces
 from test_agent_options import feed
 
 from frl.agents import DDPG, DDPGConfig
-from frl.agents.guide import guide_weight_at, imitation_loss, q_filter, residual_action
+from frl.agents.guide import (
+    guide_weight_at,
+    imitation_loss,
+    lower_only,
+    q_filter,
+    residual_action,
+)
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
 ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
@@ -50,6 +56,15 @@ def test_the_q_filter_lets_the_actor_leave_only_where_the_critic_prefers_it_by_t
     q_actor = torch.tensor([0.5, 1.0, 1.4, 2.0])
     assert q_filter(q_teacher, q_actor, 0.0).tolist() == [1.0, 1.0, 0.0, 0.0]
     assert q_filter(q_teacher, q_actor, 0.5).tolist() == [1.0, 1.0, 1.0, 0.0]
+
+
+def test_a_lower_only_filter_lets_the_actor_leave_the_teacher_only_to_brake():
+    mask = torch.tensor([0.0, 0.0, 1.0, 0.0])  # the Q-filter: leave on 0, 1 and 3
+    actor = torch.tensor([[-1.0], [1.0], [-1.0], [0.5]])
+    teacher = torch.tensor([[1.0], [-1.0], [1.0], [0.5]])
+    # 0: brakes where the teacher goes (may leave); 1: goes where it brakes (imitates);
+    # 2: the critic prefers the teacher (imitates); 3: the same action (imitates).
+    assert lower_only(mask, actor, teacher).tolist() == [0.0, 1.0, 1.0, 1.0]
 
 
 def test_the_imitation_loss_by_hand():
@@ -115,8 +130,9 @@ def test_the_imitation_term_pulls_the_actor_to_the_teacher_on_the_filtered_state
     assert agent.predict(crowded)[0][0] < -0.5 < 0.5 < agent.predict(empty)[0][0]
 
 
-def test_the_q_filtered_term_uses_the_critics_values_of_both_actions():
-    agent = DDPG(GRID, ACCEL, guided(guide_filter_margin=0.25), seed=3)
+@pytest.mark.parametrize("kind", ["q", "q_lower"])
+def test_the_q_filtered_term_uses_the_critics_values_of_both_actions(kind):
+    agent = DDPG(GRID, ACCEL, guided(guide_filter=kind, guide_filter_margin=0.25), seed=3)
     agent.set_guide(brake_when_crowded)
     feed(agent, 8)
     batch = agent.buffer.gather(np.arange(4), sparse=agent.sparse)
@@ -126,6 +142,8 @@ def test_the_q_filtered_term_uses_the_critics_values_of_both_actions():
         q_teacher = agent.critic(batch.obs, batch.guide_actions)
     loss, share = agent._imitation(batch, preactivation, q_actor)
     mask = (q_actor <= q_teacher + 0.25).float()
+    if kind == "q_lower":
+        mask = lower_only(mask, preactivation.clamp(-1, 1), batch.guide_actions)
     assert share.item() == pytest.approx(mask.mean().item())
     assert loss.item() == pytest.approx(imitation_loss(preactivation, batch.guide_actions, mask))
 
@@ -167,7 +185,7 @@ def test_a_residual_actor_starts_at_the_teachers_action_and_learns_a_correction(
         ({"guide": "oracle"}, "guide must be one of"),
         ({"guide_weight": -1.0}, "guide_weight"),
         ({"guide_decay_steps": -5}, "guide_decay_steps"),
-        ({"guide_filter": "sometimes"}, "guide_filter"),
+        ({"guide_filter": "sometimes"}, "guide_filter must be one of q, q_lower, none"),
         ({"guide_filter_margin": -0.1}, "guide_filter_margin"),
         ({"guide_residual": "yes"}, "guide_residual"),
         ({"guide": "none", "guide_weight": 1.0}, "set guide=gap_acceptance"),

@@ -13,7 +13,7 @@ ENCODERS: tuple[str, ...] = ("flat", "vehicles")
 ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
 WARMUP_POLICIES: tuple[str, ...] = ("uniform", "gap_acceptance")
 GUIDES: tuple[str, ...] = ("none", "gap_acceptance")
-GUIDE_FILTERS: tuple[str, ...] = ("q", "none")
+GUIDE_FILTERS: tuple[str, ...] = ("q", "q_lower", "none")
 REPLAYS: tuple[str, ...] = ("uniform", "lap")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
@@ -179,8 +179,10 @@ class DDPGConfig:
     guide_filter: str = "q"
     """Where the imitation term applies: ``q``, only on states where the critic does not
     rate the actor's action above the teacher's by more than ``guide_filter_margin``
-    (Nair et al.'s Q-filter: the actor may leave the teacher where it knows better), or
-    ``none``, on every state."""
+    (Nair et al.'s Q-filter: the actor may leave the teacher where it knows better);
+    ``q_lower``, the same, but the actor may leave the teacher only for a lower action
+    (for the intersection: to brake where the teacher goes, never to go where it brakes);
+    or ``none``, on every state."""
     guide_filter_margin: float = 0.0
     """How far the Q-filter distrusts the critic: the actor leaves the teacher only where
     Q(s, actor) exceeds Q(s, teacher) by more than this."""

@@ -18,7 +18,13 @@ from torch import Tensor, nn
 from frl.agents.checkpoint import CheckpointError, read_checkpoint, write_checkpoint
 from frl.agents.config import DDPGConfig
 from frl.agents.functional import hard_update, soft_update, td_target
-from frl.agents.guide import guide_weight_at, imitation_loss, q_filter, residual_action
+from frl.agents.guide import (
+    guide_weight_at,
+    imitation_loss,
+    lower_only,
+    q_filter,
+    residual_action,
+)
 from frl.agents.learn import LearnCallback, learn
 from frl.agents.n_step import NStepAccumulator
 from frl.agents.networks import Actor, Critic, init_mlp_
@@ -597,10 +603,13 @@ class DDPG:
             return None
         teacher = batch.guide_actions
         cfg = self.config
-        if cfg.guide_filter == "q":
+        if cfg.guide_filter in ("q", "q_lower"):
             with torch.no_grad(), self._autocast():
                 q_teacher = self.critic(batch.obs, teacher)
             mask = q_filter(q_teacher, q_actor.detach(), cfg.guide_filter_margin)
+            if cfg.guide_filter == "q_lower":
+                actor_action = preactivation.detach().float().clamp(-1.0, 1.0)
+                mask = lower_only(mask, actor_action, teacher)
         else:
             mask = torch.ones(teacher.shape[0], device=teacher.device)
         loss = weight * imitation_loss(preactivation.float(), teacher, mask)

@@ -30,6 +30,14 @@ def q_filter(q_teacher: Tensor, q_actor: Tensor, margin: float) -> Tensor:
     return (q_actor <= q_teacher + margin).float()
 
 
+def lower_only(mask: Tensor, actor_action: Tensor, teacher: Tensor) -> Tensor:
+    """``mask`` (1.0: imitate) where the actor may leave the teacher only towards lower
+    actions: it is kept 1.0 wherever the actor's action is not below the teacher's in every
+    dimension (for the intersection: wherever the actor would not brake harder)."""
+    below = (actor_action <= teacher).all(dim=-1) & (actor_action < teacher).any(dim=-1)
+    return torch.where(below, mask, torch.ones_like(mask))
+
+
 def imitation_loss(preactivation: Tensor, teacher: Tensor, mask: Tensor) -> Tensor:
     """Batch mean of ``mask * (preactivation - teacher)**2`` over the action dimensions.
 
