@@ -8,7 +8,8 @@ Reads ``DATA/{group}-seed{seed}/results.json`` (a run's exported small files, or
 cloned driver's, ``benchmarks/clone_driver.py``) from every DATA directory given, first
 found first. Prints every run, then per group and per task (left, straight, right,
 average) the means with 95% t intervals over seeds and the differences paired seed by
-seed against the baseline group, full throttle and the gap-acceptance driver; then, per
+seed against the baseline group, full throttle and the gap-acceptance driver; a compact
+table of the same (one row per group and task, against the rule and the baseline); then, per
 group, the bar of an agent that learns from its own driving (mean return >= 6.0,
 collisions <= 9%, arrivals >= 90%, no seed below 5.5) and the goal (return at least the
 rule's and collisions at most the rule's, paired means over the seeds; arrivals >= 95%;
@@ -24,7 +25,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from paired_runs import model_metric, print_runs, print_summary, yardstick_metric
+from paired_runs import (
+    estimate_text,
+    model_metric,
+    print_runs,
+    print_summary,
+    yardstick_metric,
+)
 
 from frl.envs import TASKS
 from frl.fileio import read_json
@@ -127,6 +134,38 @@ def print_task_rates(groups: dict[str, list[RunRecord]]) -> None:
         print(f"| {group} | {len(records)} | " + " | ".join(cells) + " |")
 
 
+def print_compact(groups: dict[str, list[RunRecord]], baseline: str) -> None:
+    """One row per group and task: means, travel time, and paired gaps to the rule and
+    to the baseline group, in return and collisions."""
+    print("| group | task | seeds | return | collisions | arrivals | travel time | "
+          "return - rule | collisions - rule | return - " + baseline + " | collisions - "
+          + baseline + " |")  # fmt: skip
+    print("|---|---|---|" + "---|" * 8)
+    for group, records in groups.items():
+        if not records:
+            continue
+        for task in (*TASKS, "average"):
+            cells = []
+            for key, scale, unit in (("average_reward", 1, ""), ("collision_rate", 100, "%"),
+                                     ("arrival_rate", 100, "%")):  # fmt: skip
+                cells.append(estimate_text(
+                    mean_ci(list(per_seed(records, model_metric(key, task)).values())),
+                    scale, unit, False))  # fmt: skip
+            travel = per_seed(records, model_metric("average_travel_time", task))
+            cells.append(f"{np.mean(list(travel.values())):.1f}" if travel else "–")
+            for other in ("gap_acceptance", baseline):
+                for key, scale, unit in (("average_reward", 1, ""), ("collision_rate", 100, "%")):
+                    mine = per_seed(records, model_metric(key, task))
+                    if other == baseline:
+                        theirs = per_seed(groups.get(baseline, []), model_metric(key, task))
+                        gap = None if group == baseline else paired(mine, theirs)
+                    else:
+                        theirs = per_seed(records, yardstick_metric(other, key, task))
+                        gap = paired(mine, theirs)
+                    cells.append(estimate_text(gap, scale, unit, True))
+            print(f"| {group} | {task} | {len(records)} | " + " | ".join(cells) + " |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", type=Path, nargs="+")
@@ -151,6 +190,8 @@ def main() -> None:
     for task in (*TASKS, "average"):
         print(f"\n## {task}\n")
         print_summary(groups, task, baseline=baseline)
+    print("\n## Per task, compact (gaps paired seed by seed)\n")
+    print_compact(groups, baseline)
     print("\n## Collisions per task beside the rule\n")
     print_task_rates(groups)
     print("\n## The bar and the goal\n")
