@@ -163,7 +163,8 @@ def print_compact(groups: dict[str, list[RunRecord]], baseline: str) -> None:
                         theirs = per_seed(records, yardstick_metric(other, key, task))
                         gap = paired(mine, theirs)
                     cells.append(estimate_text(gap, scale, unit, True))
-            print(f"| {group} | {task} | {len(records)} | " + " | ".join(cells) + " |")
+            seeds = ", ".join(str(run.seed) for run in records)
+            print(f"| {group} | {task} | {seeds} | " + " | ".join(cells) + " |")
 
 
 def main() -> None:

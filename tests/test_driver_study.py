@@ -52,7 +52,7 @@ def test_the_compact_table_pairs_each_group_with_the_rule_and_the_baseline(tmp_p
     rows = [line for line in done.stdout.splitlines() if line.startswith("| guided | average")]
     # return 6.7 (6.6, 6.8); the rule: +0.20, -1.0 pp; default: +1.50 (1.6, 1.4), -11 pp
     assert rows == [
-        "| guided | average | 2 | 6.70 ± 1.27 | 3.0 ± 0.0% | 97.0 ± 0.0% | 60.0 "
+        "| guided | average | 0, 1 | 6.70 ± 1.27 | 3.0 ± 0.0% | 97.0 ± 0.0% | 60.0 "
         "| +0.20 ± 1.27 | -1.0 ± 0.0 pp | +1.50 ± 1.27 | -11.0 ± 0.0 pp |"
     ]
     verdicts = [line for line in done.stdout.splitlines() if line.startswith("- guided")]
