@@ -26,6 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from paired_runs import (
+    METRICS,
     estimate_text,
     model_metric,
     print_runs,
@@ -145,24 +146,21 @@ def print_compact(groups: dict[str, list[RunRecord]], baseline: str) -> None:
         if not records:
             continue
         for task in (*TASKS, "average"):
-            cells = []
-            for key, scale, unit in (("average_reward", 1, ""), ("collision_rate", 100, "%"),
-                                     ("arrival_rate", 100, "%")):  # fmt: skip
-                cells.append(estimate_text(
-                    mean_ci(list(per_seed(records, model_metric(key, task)).values())),
-                    scale, unit, False))  # fmt: skip
+            mine = {key: per_seed(records, model_metric(key, task)) for key, *_ in METRICS}
+            cells = [
+                estimate_text(mean_ci(list(mine[key].values())), scale, unit, False)
+                for key, _, scale, unit in METRICS
+            ]
             travel = per_seed(records, model_metric("average_travel_time", task))
             cells.append(f"{np.mean(list(travel.values())):.1f}" if travel else "–")
-            for other in ("gap_acceptance", baseline):
-                for key, scale, unit in (("average_reward", 1, ""), ("collision_rate", 100, "%")):
-                    mine = per_seed(records, model_metric(key, task))
-                    if other == baseline:
-                        theirs = per_seed(groups.get(baseline, []), model_metric(key, task))
-                        gap = None if group == baseline else paired(mine, theirs)
-                    else:
-                        theirs = per_seed(records, yardstick_metric(other, key, task))
-                        gap = paired(mine, theirs)
-                    cells.append(estimate_text(gap, scale, unit, True))
+            gap_metrics = METRICS[:2]  # return and collisions
+            for key, _, scale, unit in gap_metrics:
+                rule = per_seed(records, yardstick_metric("gap_acceptance", key, task))
+                cells.append(estimate_text(paired(mine[key], rule), scale, unit, True))
+            for key, _, scale, unit in gap_metrics:
+                theirs = per_seed(groups.get(baseline, []), model_metric(key, task))
+                gap = None if group == baseline else paired(mine[key], theirs)
+                cells.append(estimate_text(gap, scale, unit, True))
             seeds = ", ".join(str(run.seed) for run in records)
             print(f"| {group} | {task} | {seeds} | " + " | ".join(cells) + " |")
 
