@@ -14,6 +14,7 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from train_helpers import compose_config
 
+from frl.agents import DDPG
 from frl.federation import ClientFailure
 from frl.federation.tensorboard import EPISODE_WINDOW
 from frl.report.aggregate import reward_curve
@@ -212,8 +213,6 @@ def test_a_guided_route_observing_lap_agent_trains_and_tests(tmp_path):
     assert evaluation["average"]["episodes"] == 6
     rule = evaluation["yardsticks"]["gap_acceptance"]["average"]
     assert rule["episodes"] == 6
-    from frl.agents import DDPG
-
     model = DDPG.load(next((tmp_path / "run" / "models").glob("*.pt")))
     assert model.config.guide_residual and model.layout.parts == {
         "grid": (26, 18, 3),
