@@ -99,6 +99,11 @@ class RunState:
     left out of some rounds (``federation.fraction_train``)."""
     participants: list[list[str]] = field(default_factory=list)
     """The vehicles that trained in each round (recorded only where rounds draw a part)."""
+    round_tests: list[dict[str, Any]] = field(default_factory=list)
+    """The per-round test curve (``round_test_episodes``): after each round, ``{"step",
+    "per_task", "average"}`` of the deployed model on the round-test seeds."""
+    round_test_s: float = 0.0
+    """Seconds the round tests took, summed over rounds (inside ``wall_time_s``)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -37,7 +37,9 @@ from frl.federation.plan import (
     FederationPlan,
     client_seeds,
     initial_model_seed,
+    round_test_seeds,
 )
+from frl.federation.round_tests import RoundTester
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores, threads_per_worker
 from frl.policies import YARDSTICKS
@@ -175,6 +177,9 @@ class TrainSchema:
     eval_episodes: int = 100
     """Test episodes per task after training (Section IV.B); 0 skips evaluation. Tests
     run on the training traffic (``env.scenario``, set by the ``traffic`` group)."""
+    round_test_episodes: int = 0
+    """Test episodes per task after every round, on seeds of their own (the per-round test
+    curve, ``eval/round/...``); 0: none."""
     yardsticks: list[str] = field(
         default_factory=lambda: ["full_throttle", "gap_acceptance", "oracle"]
     )
@@ -234,6 +239,27 @@ class TrainSettings:
     vehicle_envs: tuple[EnvConfig, ...] | None = None
     """Each vehicle's training environment where the fleet's traffic differs; None: ``env``."""
     workers: int = 0
+    round_test_episodes: int = 0
+    """Test episodes per task after every round (the per-round test curve); 0: none."""
+
+    def round_tester(self) -> RoundTester | None:
+        """The per-round tester of this run (not started), or None where it has none."""
+        if self.round_test_episodes <= 0:
+            return None
+        tasks = self.plan.test_tasks
+        seeds = {
+            task: round_test_seeds(self.seed, task, self.round_test_episodes, self.eval_episodes)
+            for task in tasks
+        }
+        return RoundTester(
+            {task: self.eval_env(task) for task in tasks},
+            self.reward,
+            self.agent,
+            seeds,
+            device=self.device,
+            num_threads=self.worker_threads(len(tasks)),
+            timeout_s=self.worker_timeout_s,
+        )
 
     def worker_processes(self) -> int:
         """Worker processes of the processes backend: ``federation.workers`` if set, else
@@ -310,6 +336,11 @@ def validate(
         raise ConfigError(
             f"eval_episodes must be a non-negative integer, got {data['eval_episodes']!r}"
         )
+    if data["round_test_episodes"] < 0:
+        raise ConfigError(
+            "round_test_episodes must be a non-negative integer (0: no per-round test), "
+            f"got {data['round_test_episodes']!r}"
+        )
     yardsticks = tuple(data["yardsticks"])
     unknown_yardsticks = [name for name in yardsticks if name not in YARDSTICKS]
     if unknown_yardsticks:
@@ -378,6 +409,7 @@ def validate(
         strategy=strategy,
         vehicle_envs=vehicle_envs,
         workers=federation["workers"],
+        round_test_episodes=data["round_test_episodes"],
     )
 
 

@@ -35,6 +35,10 @@ from frl.train_config import ConfigError, TrainSettings, load_run_config, valida
 
 log = logging.getLogger("frl.train")
 
+ROUND_TEST_SEEDS_DEFINITION = (
+    "odd SUMO seeds from SeedSequence(seed, spawn_key=(0x7E57, task)), none of the final "
+    "test's; the same every round"
+)
 FINAL_REWARD_FRACTION = 0.1
 """``final_step_reward`` averages ``train/step_reward`` over this last share of the run."""
 _VOLATILE_KEYS = ("progress", "resume", "run_dir", "cores")
@@ -160,6 +164,7 @@ def train_rounds(
             settings.seed,
             progress,
             on_round_end,
+            settings.round_tester(),
         )
 
 
@@ -177,6 +182,18 @@ def final_episode_return_mean(state: RunState) -> float | None:
     if not windows or not all(windows):
         return None
     return mean_over_clients(windows)
+
+
+def round_tests_section(settings: TrainSettings, state: RunState) -> dict[str, Any] | None:
+    """The per-round test curve of ``results.json``; None for a run without it."""
+    if not state.round_tests:
+        return None
+    return {
+        "episodes_per_task": settings.round_test_episodes,
+        "exploration": False,
+        "seeds": ROUND_TEST_SEEDS_DEFINITION,
+        "points": state.round_tests,
+    }
 
 
 def training_results(settings: TrainSettings, state: RunState, run_dir: Path) -> dict[str, Any]:
@@ -240,6 +257,8 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
             "communication_s": state.communication_s,
             "checkpoint_s": state.checkpoint_s,
             "logging_s": state.logging_s,
+            "round_test_s": state.round_test_s,
+            "round_test_share": state.round_test_s / wall if wall else None,
             "episodes": state.episodes,
             "collisions": state.collisions,
             "arrivals": state.arrivals,
@@ -255,6 +274,7 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
                 "averaged over the clients"
             ),
         },
+        "round_tests": round_tests_section(settings, state),
         # The versions the training ran with (written at the session's start); HEAD may
         # have moved by now.
         "versions": read_json(versions_path) if versions_path.exists() else versions(),

@@ -62,9 +62,11 @@ def in_process_run(tmp_path_factory):
 def test_simulation_matches_the_in_process_backend(in_process_run, tmp_path):
     run_dir = tmp_path / "run"
 
-    results = train(compose_config(run_dir, [*TWO_ROUNDS, *FLOWER, "eval_episodes=1"]))
+    results = train(
+        compose_config(run_dir, [*TWO_ROUNDS, *FLOWER, "eval_episodes=1", "round_test_episodes=1"])
+    )
 
-    _assert_same_model(in_process_run, run_dir)
+    _assert_same_model(in_process_run, run_dir)  # the round tests leave the training alone
     reference = json.loads((in_process_run / "results.json").read_text())
     assert results["backend"] == "flower" and reference["backend"] == "processes"
     assert results["communication"] == reference["communication"]
@@ -72,6 +74,7 @@ def test_simulation_matches_the_in_process_backend(in_process_run, tmp_path):
     assert results["training"]["episodes"] == reference["training"]["episodes"]
     assert set(results) == set(reference) | {"evaluation", "evaluation_wall_time_s"}
     assert results["evaluation"]["per_task"]["left"]["episodes"] == 1
+    assert [point["step"] for point in results["round_tests"]["points"]] == [40, 80]
     assert sorted(os.listdir(run_dir / "tb")) and (run_dir / "state.json").exists()
     assert multiprocessing.active_children() == []
 

@@ -122,7 +122,10 @@ class _Killed(Exception):
 
 
 def test_resume_after_a_kill_finishes_the_budget(tmp_path):
-    overrides = ["federation=fedavg", "federation.tasks=[left,right]", "eval_episodes=0"]
+    overrides = [
+        "federation=fedavg", "federation.tasks=[left,right]", "eval_episodes=0",
+        "round_test_episodes=1",
+    ]  # fmt: skip
     cfg = compose_config(tmp_path / "run", overrides)
 
     def kill_after_round(state):
@@ -149,6 +152,9 @@ def test_resume_after_a_kill_finishes_the_budget(tmp_path):
     assert len(np.load(tmp_path / "run" / "step_rewards.npy")) == 240
     tags = _scalar_tags(tmp_path / "run")
     assert [e.step for e in tags["server/round"]] == [80, 160, 240]
+    # The per-round test curve went on too, its points before the kill kept
+    assert [p["step"] for p in results["round_tests"]["points"]] == [80, 160, 240]
+    assert [e.step for e in tags["eval/round/average/average_reward"]] == [80, 160, 240]
     # Fig. 4's windows went on over the resume: TensorBoard and results.json end on the
     # report's curve, computed from every episode of both sessions
     fig4 = reward_curve(load_run(tmp_path / "run"), EPISODE_WINDOW)

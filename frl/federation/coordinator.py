@@ -11,7 +11,8 @@ One round (Section III.C, Fig. 2):
 3. the round is logged and checkpointed: every client's full state (agent, replay
    buffer, optimizer, noise, generators), the roadside unit's (the global model and the
    strategy's momentum or moments, where the run needs them), then ``state.json``,
-   which commits the round.
+   which commits the round; with a :class:`RoundTester`, the deployed model's test on
+   the round-test seeds is committed with it (the per-round test curve).
 
 A run killed at any point resumes from the last committed round with nothing before it
 lost; the episode that was running at the kill is dropped, since SUMO's state is not
@@ -20,12 +21,14 @@ checkpointed (the next step starts a fresh simulation with a new seed).
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from torch import Tensor
 
 from frl import run_directory as rundir
 from frl.agents.checkpoint import read_checkpoint, write_checkpoint
@@ -34,10 +37,14 @@ from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool
 from frl.federation.fedavg import state_nbytes
 from frl.federation.plan import FederationPlan, round_sample
+from frl.federation.round_tests import RoundTester
 from frl.federation.strategies import Aggregator, ServerStrategy, StrategySpec
 from frl.federation.tensorboard import EPISODE_WINDOW, TrainingLogger, resume_purge_step
 from frl.fileio import write_json_atomic
 from frl.run_directory import RoundHook, RunState
+
+ROUND_TEST_PREFIX = "eval/round"
+"""TensorBoard prefix of the per-round test curve: ``eval/round/{task or average}/{metric}``."""
 
 
 class Coordinator:
@@ -53,6 +60,8 @@ class Coordinator:
         seed: the run seed, from which rounds draw their vehicles.
         strategy: the aggregation (default: FedAvg, Eq. (3)); Flower's backend passes its
             own classes behind the same ``aggregate`` / ``state_dict`` methods.
+        round_tester: tests the deployed model(s) after every round (the per-round test
+            curve), or None.
     """
 
     def __init__(
@@ -65,6 +74,7 @@ class Coordinator:
         on_round_end: RoundHook | None = None,
         seed: int = 0,
         strategy: Aggregator | None = None,
+        round_tester: RoundTester | None = None,
     ) -> None:
         self.plan = plan
         self.clients = clients
@@ -74,6 +84,7 @@ class Coordinator:
         self.on_round_end = on_round_end
         self.seed = seed
         self.strategy: Aggregator = strategy or ServerStrategy(StrategySpec())
+        self.round_tester = round_tester
         self.global_model: dict[str, Any] | None = None
         """The roadside unit's copy of the global model, kept where a strategy steps
         from it or where vehicles left out of a round fetch it later."""
@@ -159,6 +170,7 @@ class Coordinator:
         step_rewards = np.concatenate(
             [step_rewards, np.mean(np.stack([u.step_rewards for u in updates]), axis=0)]
         ).astype(np.float32)
+        round_test = self._test_round(state)
 
         round_time = time.perf_counter() - round_started
         began = time.perf_counter()
@@ -173,6 +185,13 @@ class Coordinator:
                 round_time,
                 recent_returns=returns_before,
             )
+            if round_test is not None:
+                self.logger.log_evaluation(
+                    round_test["per_task"],
+                    round_test["average"],
+                    state.steps_per_client,
+                    prefix=ROUND_TEST_PREFIX,
+                )
             self.logger.flush()
         state.logging_s += time.perf_counter() - began
 
@@ -185,6 +204,35 @@ class Coordinator:
         rundir.write_state(self.run_dir, state)
         progress.round_committed(state)
         return step_rewards
+
+    def _test_round(self, state: RunState) -> dict[str, Any] | None:
+        """Test the deployed model(s) on the round-test seeds; the point added to
+        ``state.round_tests``, or None without a round tester."""
+        if self.round_tester is None:
+            return None
+        began = time.perf_counter()
+        point = {"step": state.steps_per_client, **self.round_tester.test(self._deployed())}
+        state.round_tests.append(point)
+        state.round_test_s += time.perf_counter() - began
+        return point
+
+    def _deployed(self) -> dict[str, list[dict[str, Tensor]]]:
+        """Each test task's model(s), as the final test deploys them (``plan.model_files``):
+        the global model (FedAvg), the one model (Central), the task's vehicles (Sep)."""
+        tasks = self.plan.test_tasks
+        if self.plan.scheme == "separate":
+            return {
+                task: [
+                    self.clients.get_model(index)
+                    for index, vehicle_task in enumerate(self.plan.client_tasks)
+                    if vehicle_task == task
+                ]
+                for task in tasks
+            }
+        # Under fraction_train the roadside unit holds the global model; otherwise
+        # every vehicle does, the first included.
+        model = self.global_model if self.global_model is not None else self.clients.get_model(0)
+        return {task: [model] for task in tasks}
 
     def _draw(self, round_index: int) -> list[int] | None:
         """The vehicles (indices into ``clients.names``) that train this round; None: all."""
@@ -305,17 +353,30 @@ def run_logged(
     seed: int,
     progress: bool = False,
     on_round_end: RoundHook | None = None,
+    round_tester: RoundTester | None = None,
 ) -> RunState:
     """The rounds from ``state`` to the end, logged to the run's TensorBoard directory
-    (a resumed run's events past its last commit dropped); whatever carries the messages."""
+    (a resumed run's events past its last commit dropped); whatever carries the messages.
+    ``round_tester``, if any, is started here and stopped at the end."""
     tb_dir = run_dir / rundir.TB_DIR
-    with TrainingLogger(
-        tb_dir,
-        purge_step=resume_purge_step(tb_dir, state.steps_per_client),
-        tasks=plan.client_tasks,
-    ) as logger:
+    with (
+        TrainingLogger(
+            tb_dir,
+            purge_step=resume_purge_step(tb_dir, state.steps_per_client),
+            tasks=plan.client_tasks,
+        ) as logger,
+        round_tester or contextlib.nullcontext(),
+    ):
         coordinator = Coordinator(
-            plan, clients, run_dir, logger, progress, on_round_end, seed=seed, strategy=strategy
+            plan,
+            clients,
+            run_dir,
+            logger,
+            progress,
+            on_round_end,
+            seed=seed,
+            strategy=strategy,
+            round_tester=round_tester,
         )
         return coordinator.run(state)
 

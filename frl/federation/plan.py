@@ -254,3 +254,29 @@ def evaluation_seeds(seed: int, task: str, episodes: int) -> list[int]:
     branch = np.random.SeedSequence(int(seed), spawn_key=(_EVALUATION_BRANCH, TASKS.index(task)))
     raw = branch.generate_state(episodes, np.uint32) if episodes else np.zeros(0, np.uint32)
     return [2 * (int(x) % _SEED_HALF_RANGE) + 1 for x in raw]
+
+
+_ROUND_TEST_BRANCH = 0x7E57
+"""Spawn-key root of the per-round test streams, apart from the final test's."""
+
+
+def round_test_seeds(seed: int, task: str, episodes: int, final_episodes: int) -> list[int]:
+    """SUMO seeds of the per-round test episodes of ``task`` (``round_test_episodes``).
+
+    Odd, so never a training seed, from a branch of their own, and never one of the final
+    test's ``final_episodes`` seeds: the curve and the final table meet different traffic.
+    """
+    final = set(evaluation_seeds(seed, task, final_episodes))
+    branch = np.random.SeedSequence(int(seed), spawn_key=(_ROUND_TEST_BRANCH, TASKS.index(task)))
+    seeds: list[int] = []
+    drawn = episodes
+    while len(seeds) < episodes:
+        # generate_state's words are a stream: drawing more keeps the first ones.
+        raw = branch.generate_state(drawn, np.uint32)
+        seeds = []
+        for word in raw:
+            candidate = 2 * (int(word) % _SEED_HALF_RANGE) + 1
+            if candidate not in final and candidate not in seeds:
+                seeds.append(candidate)
+        drawn += episodes - len(seeds)
+    return seeds[:episodes]

@@ -28,6 +28,7 @@ curves of runs with different schemes, intervals or client counts line up.
 | ``server/bytes_total`` | cumulative bytes up + down |
 | ``server/round_time_s`` | wall time of the round |
 | ``eval/{task}/{metric}``, ``eval/average/{metric}`` | test metrics, at the last step |
+| ``eval/round/{task or average}/{metric}`` | the per-round test curve, each round |
 
 plus an hparams entry (key hyperparameters against ``rollout/ep_rew_mean`` and the
 ``eval/average/*`` metrics).

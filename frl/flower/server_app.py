@@ -62,6 +62,7 @@ def run_roadside_unit(
         settings.seed,
         progress,
         on_round_end,
+        settings.round_tester(),  # its workers run beside the roadside unit
     )
 
 
