@@ -36,8 +36,10 @@ def make_run(
     total_bytes: int = 0,
     wall_time_s: float = 60.0,
     learning_starts: int = 0,
+    round_tests: list[tuple[int, float]] | None = None,
 ) -> Path:
-    """A finished run. ``episodes``: per client, (end step, return) pairs."""
+    """A finished run. ``episodes``: per client, (end step, return) pairs; ``round_tests``:
+    the per-round test curve's (step, mean test return) points."""
     clients = (
         ["client0_random"]
         if scheme == "central"
@@ -84,6 +86,12 @@ def make_run(
     }
     if evaluation is not None:
         results["evaluation"] = evaluation
+    if round_tests is not None:
+        points = [
+            {"step": step, "per_task": {}, "average": {"average_reward": value}}
+            for step, value in round_tests
+        ]
+        results["round_tests"] = {"episodes_per_task": 20, "points": points}
     write_json_atomic(run_dir / "results.json", results)
     return run_dir
 

@@ -8,7 +8,8 @@ from report_helpers import TASKS, evaluation, make_run
 
 from frl.report.aggregate import CurveSettings
 from frl.report.build import build_report
-from frl.report.claims import fig4_fig5_claims, fig6_claims, verdict
+from frl.report.claims import claims_on_tested_curve, fig4_fig5_claims, fig6_claims, verdict
+from frl.report.markdown import claims_block
 from frl.report.measures import paired
 from frl.report.runs import load_run
 from frl.report.stats import Estimate
@@ -143,3 +144,51 @@ def test_gap_acceptance_rows_appear_only_for_runs_tested_beside_it(root, tmp_pat
     assert safer.verdict == "opposite (significant)"  # +6 pp at both seeds
     arrives = claims["arrival rate, FedAvg-DDPG - gap acceptance, same seeds"]
     assert arrives.ours.mean == pytest.approx(-0.06)
+
+
+def _tested_runs(tmp_path, curves: dict[tuple[str, int], list[float]]) -> list:
+    """Runs whose per-round tests (every 2 steps) return ``curves[scheme, seed]``."""
+    runs = []
+    for (scheme, seed), returns in curves.items():
+        points = [(2 * (i + 1), r) for i, r in enumerate(returns)]
+        path = make_run(tmp_path / f"{scheme}-seed{seed}", scheme, seed, round_tests=points)
+        runs.append(load_run(path))
+    return runs
+
+
+def test_the_claims_on_tested_curve_take_the_step_each_scheme_holds_the_threshold(tmp_path):
+    runs = _tested_runs(tmp_path, {
+        ("fedavg", 0): [5.0, 6.1, 6.3, 6.2],  # holds from step 4
+        ("fedavg", 1): [6.5, 5.9, 6.1, 6.0],  # dips at 4: holds from step 6
+        ("fedavg", 2): [5.0, 6.2, 6.4, 6.9],  # holds from step 4
+        ("separate", 0): [5.0, 5.5, 6.0, 6.1],  # holds from 6: 6 / 4 - 1 = +50%
+        ("separate", 1): [5.0, 5.5, 6.2, 6.3],  # holds from 6: 6 / 6 - 1 = 0
+        ("separate", 2): [6.2, 6.3, 6.4, 5.8],  # ends below: never holds
+    })  # fmt: skip
+    runs.append(load_run(make_run(tmp_path / "central-seed0", "central", 0)))  # no curve
+
+    holds, sooner_than_sep, sooner_than_central = claims_on_tested_curve(runs, SETTINGS)
+
+    assert holds.ours.mean == pytest.approx(14 / 3) and holds.ours.n == 3
+    assert holds.verdict == "held at 3 of 3 seeds"
+    assert sooner_than_sep.ours.mean == pytest.approx(0.25) and sooner_than_sep.ours.n == 2
+    assert sooner_than_sep.verdict == "same direction, not significant"
+    assert sooner_than_central.ours is None and sooner_than_central.verdict == "not run"
+    row = claims_block([sooner_than_sep])
+    assert f"| 25.0 ± {12.706205 * 25:.1f}% |" in row  # ratios 0.5, 0: t(0.975, 1) s / sqrt(2)
+
+
+def test_a_scheme_that_never_holds_the_threshold_is_named_with_its_seeds(tmp_path):
+    runs = _tested_runs(tmp_path, {
+        ("fedavg", 0): [5.0, 5.5], ("fedavg", 1): [6.1, 6.2],
+        ("separate", 0): [6.5, 5.5], ("separate", 1): [5.0, 5.9],
+    })  # fmt: skip
+
+    holds, sooner_than_sep, _ = claims_on_tested_curve(runs, SETTINGS)
+
+    assert holds.verdict == "held at 1 of 2 seeds (not at seed 0)"
+    assert sooner_than_sep.ours is None
+    assert sooner_than_sep.verdict == (
+        "no seed where both hold: FedAvg-DDPG held at 1 of 2 seeds (not at seed 0), "
+        "Sep-DDPG held at 0 of 2 seeds (not at seeds 0, 1)"
+    )

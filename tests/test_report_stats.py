@@ -9,6 +9,7 @@ from frl.report.stats import (
     band,
     episode_return_curve,
     first_crossing,
+    first_hold,
     mean_ci,
     moving_average,
     t_quantile,
@@ -88,3 +89,12 @@ def test_first_crossing_counts_only_steps_after_the_given_one():
     assert first_crossing(curve, 6.0, after=1) == 3
     assert first_crossing(curve, 6.0, after=3) == 4
     assert first_crossing(curve, 6.0, after=4) is None
+
+
+def test_first_hold_is_the_step_from_which_the_curve_stays_at_the_threshold():
+    steps = [2, 4, 6, 8]
+    assert first_hold(steps, [6.1, 5.9, 6.2, 6.0], 6.0) == 6  # 6.0 itself holds
+    assert first_hold(steps, [6.1, 6.2, 6.3, 7.0], 6.0) == 2
+    assert first_hold(steps, [6.1, 6.2, 6.3, 5.0], 6.0) is None  # ends below
+    assert first_hold(steps, [6.1, np.nan, 6.3, 6.4], 6.0) == 6  # NaN is no hold
+    assert first_hold([], [], 6.0) is None

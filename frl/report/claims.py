@@ -34,7 +34,7 @@ from frl.report.measures import (
     yardstick_metric,
 )
 from frl.report.runs import RunRecord
-from frl.report.stats import Estimate, first_crossing, mean_ci
+from frl.report.stats import Estimate, first_crossing, first_hold, mean_ci
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,8 @@ class Claim:
     expected_sign: int
     """+1 if the claim says ``A - B > 0``, -1 if ``< 0``."""
     unit: str = ""
-    """``pp``: a difference of rates, shown in percentage points."""
+    """``pp``: a difference of rates, shown in percentage points; ``%``: a ratio less one,
+    shown in percent."""
     note: str = ""
     settled: str | None = None
     """A verdict that is no comparison (a threshold reached at k of n seeds)."""
@@ -96,6 +97,63 @@ def crossing_step(settings: CurveSettings) -> Metric:
         return None if step is None else float(step)
 
     return read
+
+
+def hold_step_on_tested_curve(threshold: float) -> Metric:
+    """The first round from which the per-round test return (``round_test_episodes``)
+    stays at or above ``threshold``; None where it never holds, or was not tested."""
+
+    def read(run: RunRecord) -> float | None:
+        curve = run.round_test_curve
+        step = None if curve is None else first_hold(*curve, threshold)
+        return None if step is None else float(step)
+
+    return read
+
+
+def claims_on_tested_curve(runs: list[RunRecord], settings: CurveSettings) -> list[Claim]:
+    """Fig. 4's convergence claims on the per-round test curve, which has no exploration
+    noise in it: the step from which each scheme's tested return holds the threshold."""
+    tested = group([run for run in runs if run.round_test_curve], lambda run: run.scheme)
+    hold = hold_step_on_tested_curve(settings.threshold)
+    steps = {scheme: per_seed(scheme_runs, hold) for scheme, scheme_runs in tested.items()}
+    fed, threshold = SCHEME_LABELS["fedavg"], f"{settings.threshold:g}"
+
+    def held(scheme: str) -> str:
+        seeds = sorted(run.seed for run in tested.get(scheme, []))
+        if not seeds:
+            return "not run"
+        missed = [seed for seed in seeds if seed not in steps[scheme]]
+        where = f" (not at seed{'s' * (len(missed) > 1)} {', '.join(map(str, missed))})"
+        return f"held at {len(seeds) - len(missed)} of {len(seeds)} seeds" + (
+            where if missed else ""
+        )
+
+    fed_steps = steps.get("fedavg", {})
+    claims = [
+        Claim("4", f"{fed}'s tested return holds {threshold}", "step 4,593 (training curve)",
+              f"first step from which the per-round test return stays at or above {threshold}, "
+              "over the seeds that hold it",
+              mean_ci(list(fed_steps.values())) if fed_steps else None, +1, unit=" steps",
+              settled=held("fedavg")),
+    ]  # fmt: skip
+    for other, speed in (("separate", "32.11"), ("central", "114.26")):
+        label = SCHEME_LABELS[other]
+        other_steps = steps.get(other, {})
+        ratios = {s: other_steps[s] / fed_steps[s] - 1 for s in set(fed_steps) & set(other_steps)}
+        settled = None
+        if not (tested.get("fedavg") and tested.get(other)):
+            settled = "not run"
+        elif not ratios:
+            settled = f"no seed where both hold: {fed} {held('fedavg')}, {label} {held(other)}"
+        claims.append(
+            Claim("4", f"{fed}'s tested return holds {threshold} sooner than {label}'s",
+                  f"{label} needs {speed}% more steps",
+                  f"{label}'s step / {fed}'s - 1, per-round test curve, seeds where both hold",
+                  mean_ci(list(ratios.values())) if ratios else None, +1, unit="%",
+                  settled=settled)
+        )  # fmt: skip
+    return claims
 
 
 # ------------------------------------------------------------------- claims
@@ -240,5 +298,6 @@ def all_claims(collection: Collection, settings: CurveSettings) -> list[Claim]:
     return [
         *fig3_claims(balanced or [], reference),
         *fig4_fig5_claims(collection.of("fig4"), settings),
+        *claims_on_tested_curve(collection.of("fig4"), settings),
         *fig6_claims({i: runs for i, (runs, _) in fig6_runs(collection).items()}, settings),
     ]

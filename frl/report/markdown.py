@@ -168,9 +168,12 @@ def claims_block(claims: list[Claim]) -> str:
     """One row per claim of the paper: ours, the paper's, the verdict."""
     rows = []
     for c in claims:
-        percent = c.unit == "pp"
+        percent = c.unit in ("pp", "%")
         ours = fmt(c.ours, 1 if percent or c.unit == " steps" else 2, percent=percent)
-        ours = ours.replace("%", " pp") if percent else ours + (c.unit if c.ours else "")
+        if c.unit == "pp":
+            ours = ours.replace("%", " pp")
+        elif not percent and c.ours:
+            ours += c.unit
         measure = f"{c.measure} ({c.note})" if c.note else c.measure
         rows.append([c.figure, c.claim, c.paper, measure, ours, c.verdict])
     header = ["Fig.", "claim", "paper", "our measure (paired over seeds)", "ours: mean ± 95% CI",

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -98,6 +99,16 @@ class RunRecord:
     @property
     def evaluation(self) -> dict[str, Any] | None:
         return self.results.get("evaluation")
+
+    @property
+    def round_test_curve(self) -> tuple[list[int], list[float]] | None:
+        """The per-round test curve (``round_test_episodes``): each round's last step and
+        the deployed model's mean test return there; None for a run without it."""
+        points = (self.results.get("round_tests") or {}).get("points") or []
+        if not points:
+            return None
+        returns = [point["average"].get("average_reward") for point in points]
+        return [int(p["step"]) for p in points], [math.nan if r is None else r for r in returns]
 
     @property
     def reward(self) -> dict[str, Any]:

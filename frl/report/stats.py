@@ -115,3 +115,15 @@ def first_crossing(curve: np.ndarray, threshold: float, after: int = 0) -> int |
     ``threshold``; None if never."""
     hits = np.flatnonzero(np.asarray(curve)[after:] >= threshold)
     return after + int(hits[0]) + 1 if hits.size else None
+
+
+def first_hold(steps: Sequence[int], values: Sequence[float], threshold: float) -> int | None:
+    """The first of ``steps`` from which every later value is at or above ``threshold``
+    (the curve *holds* it to the end); None if the last value is below it or NaN."""
+    held = None
+    for step, value in zip(steps, values, strict=True):
+        if not value >= threshold:  # NaN breaks a hold too
+            held = None
+        elif held is None:
+            held = int(step)
+    return held
