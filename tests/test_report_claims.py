@@ -8,7 +8,14 @@ from report_helpers import TASKS, evaluation, make_run
 
 from frl.report.aggregate import CurveSettings
 from frl.report.build import build_report
-from frl.report.claims import claims_on_tested_curve, fig4_fig5_claims, fig6_claims, verdict
+from frl.report.claims import (
+    fig4_fig5_claims,
+    fig6_claims,
+    hold_claims,
+    per_round_test_curve,
+    training_curve,
+    verdict,
+)
 from frl.report.markdown import claims_block
 from frl.report.measures import paired
 from frl.report.runs import load_run
@@ -167,7 +174,9 @@ def test_the_claims_on_tested_curve_take_the_step_each_scheme_holds_the_threshol
     })  # fmt: skip
     runs.append(load_run(make_run(tmp_path / "central-seed0", "central", 0)))  # no curve
 
-    holds, sooner_than_sep, sooner_than_central = claims_on_tested_curve(runs, SETTINGS)
+    holds, sooner_than_sep, sooner_than_central = hold_claims(
+        runs, SETTINGS, per_round_test_curve, "tested return"
+    )
 
     assert holds.ours.mean == pytest.approx(14 / 3) and holds.ours.n == 3
     assert holds.verdict == "held at 3 of 3 seeds"
@@ -184,11 +193,32 @@ def test_a_scheme_that_never_holds_the_threshold_is_named_with_its_seeds(tmp_pat
         ("separate", 0): [6.5, 5.5], ("separate", 1): [5.0, 5.9],
     })  # fmt: skip
 
-    holds, sooner_than_sep, _ = claims_on_tested_curve(runs, SETTINGS)
+    holds, sooner_than_sep, _ = hold_claims(runs, SETTINGS, per_round_test_curve, "tested return")
 
     assert holds.verdict == "held at 1 of 2 seeds (not at seed 0)"
     assert sooner_than_sep.ours is None
     assert sooner_than_sep.verdict == (
         "no seed where both hold: FedAvg-DDPG held at 1 of 2 seeds (not at seed 0), "
-        "Sep-DDPG held at 0 of 2 seeds (not at seeds 0, 1)"
+        "Sep-DDPG held at 0 of 2 seeds"
+    )
+
+
+def test_the_training_curve_claims_pair_the_steps_each_scheme_holds_the_threshold(tmp_path):
+    # Window 2: FedAvg's training reward is 7 from its first episode end (step 10) on,
+    # Sep-DDPG's 5 at step 10, then (5 + 7) / 2 = 6 from step 20 on.
+    fed = {f"client{i}_{t}": [(10, 7.0), (20, 7.0)] for i, t in enumerate(TASKS)}
+    runs = [
+        load_run(make_run(tmp_path / "fedavg-seed0", "fedavg", 0, episodes=fed)),
+        load_run(make_run(tmp_path / "separate-seed0", "separate", 0)),
+    ]
+
+    holds, sooner_than_sep, _ = hold_claims(
+        runs, SETTINGS, training_curve(SETTINGS), "training reward"
+    )
+
+    assert holds.ours.mean == 10 and holds.verdict == "held at 1 of 1 seeds"
+    assert sooner_than_sep.ours.mean == pytest.approx(20 / 10 - 1)
+    assert sooner_than_sep.verdict == "one seed: no interval"
+    assert sooner_than_sep.measure == (
+        "Sep-DDPG's step / FedAvg-DDPG's - 1 (training reward), seeds where both hold"
     )

@@ -120,10 +120,10 @@ def first_crossing(curve: np.ndarray, threshold: float, after: int = 0) -> int |
 def first_hold(steps: Sequence[int], values: Sequence[float], threshold: float) -> int | None:
     """The first of ``steps`` from which every later value is at or above ``threshold``
     (the curve *holds* it to the end); None if the last value is below it or NaN."""
-    held = None
-    for step, value in zip(steps, values, strict=True):
-        if not value >= threshold:  # NaN breaks a hold too
-            held = None
-        elif held is None:
-            held = int(step)
-    return held
+    data = np.asarray(values, dtype=float)
+    if len(steps) != data.size:
+        raise ValueError(f"{len(steps)} steps for {data.size} values")
+    below = np.flatnonzero(~(data >= threshold))  # NaN breaks a hold too
+    if data.size == 0 or (below.size and below[-1] == data.size - 1):
+        return None
+    return int(steps[below[-1] + 1]) if below.size else int(steps[0])
