@@ -112,6 +112,7 @@ def test_reproduce_runs_a_preset_sweep_exports_and_reports(tmp_path):
         *overrides,
         "total_steps=160",
         "eval_episodes=0",
+        "round_test_episodes=1",  # the preset's 20, shrunk
     ]
     repo = Path(__file__).resolve().parents[1]
 
@@ -141,6 +142,8 @@ def test_reproduce_runs_a_preset_sweep_exports_and_reports(tmp_path):
     assert json.loads((data / "results.json").read_text()) == json.loads(
         (run_dir / "results.json").read_text()
     )
+    exported = json.loads((data / "results.json").read_text())
+    assert [point["step"] for point in exported["round_tests"]["points"]] == [80, 160]
 
 
 def test_reproduce_runs_jobs_side_by_side_each_on_its_share(tmp_path):
@@ -150,6 +153,7 @@ def test_reproduce_runs_jobs_side_by_side_each_on_its_share(tmp_path):
         "--seeds", "0,1", "--runs-dir", str(tmp_path / "runs"), "--data-dir",
         str(tmp_path / "data"), "--no-report", "--", "federation=central",
         "federation.tasks=[left]", *overrides, "total_steps=160", "eval_episodes=0",
+        "round_test_episodes=0",
     ]  # fmt: skip
     repo = Path(__file__).resolve().parents[1]
     done = subprocess.run(command, cwd=repo, capture_output=True, text=True, timeout=300)
