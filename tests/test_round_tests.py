@@ -11,6 +11,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from train_helpers import TINY_AGENT, TINY_ENV, compose_config
 
 import frl.federation.plan as plan_module
+from frl.agents import DDPG
 from frl.agents.checkpoint import read_checkpoint
 from frl.envs import RewardConfig
 from frl.episodes import run_episodes
@@ -96,7 +97,8 @@ def test_round_tests_draw_a_curve_and_leave_training_as_it_was(tmp_path):
 def test_a_task_tester_drives_the_actor_it_is_sent(bias, yardstick):
     tester = TaskTester(TINY_ENV, RewardConfig(), TINY_AGENT)
     try:
-        actor = actor_state(tester._agent(0).federated_state())
+        agent = DDPG(tester.env.observation_space, tester.env.action_space, TINY_AGENT)
+        actor = actor_state(agent.federated_state())
         actor = {key: torch.zeros_like(value) for key, value in actor.items()}
         last_bias = [key for key in actor if key.endswith("bias")][-1]
         actor[last_bias] += bias  # tanh(+-20) is +-1 in float32: a constant pedal

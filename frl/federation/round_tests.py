@@ -102,7 +102,6 @@ class RoundTester:
             raise ValueError("envs and seeds must name the same tasks")
         self.tasks = list(envs)
         self.seeds = {task: [int(s) for s in seeds[task]] for task in self.tasks}
-        self.episodes_per_task = len(next(iter(self.seeds.values()), []))
         factories = [
             (f"round_test_{task}", functools.partial(TaskTester, envs[task], reward, agent, device))
             for task in self.tasks
