@@ -1,6 +1,6 @@
 """Reproduce Section IV: run the figure sweeps in order, export each run, build the report.
 
-    python -m frl.reproduce                            # fig4 (= fig5), fig3, fig6; seeds 0,1,2
+    python -m frl.reproduce                 # fig4 (= fig5), fig3, fig6, fig4-guided; seeds 0,1,2
     python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4   # more seeds for Figs. 4, 5
     python -m frl.reproduce --dry-run                  # print the commands only
     python -m frl.reproduce --export-only              # export finished runs, rebuild report
@@ -40,7 +40,7 @@ from frl.cli import OneLineParser
 from frl.fileio import read_json
 from frl.launchers import LAUNCHERS, launcher_overrides
 from frl.launchers import cores_per_job as launcher_cores
-from frl.report.collect import FIGURE_DIRS
+from frl.report.collect import AGENT_PANELS, FIGURE_DIRS
 from frl.report.runs import RunDataError, export_run, exported_results, has_complete_results
 from frl.run_directory import RESULTS_FILE
 from frl.side_by_side import (
@@ -53,10 +53,17 @@ from frl.side_by_side import (
 
 log = logging.getLogger("frl.reproduce")
 
-DEFAULT_FIGURES = ("fig4", "fig3", "fig6")
-"""Fig. 4 first (the issue's priority), then the cheap Fig. 3, then Fig. 6 (the costliest)."""
-SWEEP_OF = {"fig3": "fig3", "fig4": "fig4", "fig5": "fig4", "fig6": "fig6"}
-"""Fig. 5 is tested on Fig. 4's runs."""
+DEFAULT_FIGURES = ("fig4", "fig3", "fig6", "fig4-guided")
+"""Fig. 4 first (the paper's central claims), then the cheap Fig. 3, then Fig. 6 (the
+costliest), then the guided agent's panel of Figs. 4 and 5."""
+SWEEP_OF = {
+    "fig3": "fig3", "fig4": "fig4", "fig5": "fig4", "fig6": "fig6",
+    "fig4-guided": "fig4-guided", "fig5-guided": "fig4-guided",
+}  # fmt: skip
+"""Fig. 5 is tested on Fig. 4's runs (the guided panel's likewise)."""
+SWEEP_DIRS = {"fig4-guided": Path("guided", "fig4")}
+"""Where a sweep's runs go under the runs and data directories, where not its own name:
+the guided panel in the layout ``frl.report`` reads (``AGENT_PANELS``)."""
 DEFAULT_RUNS_DIR = Path("outputs/repro/runs")
 DEFAULT_DATA_DIR = Path("outputs/repro/data")
 DEFAULT_REPORT = Path("outputs/repro/results.md")
@@ -109,12 +116,13 @@ def export_finished(runs_dir: Path, data_dir: Path) -> list[Path]:
     return the targets written."""
     written = []
     for sweep in FIGURE_DIRS:
-        sweep_dir = runs_dir / sweep
-        if sweep_dir.is_dir():
-            for run_dir in sorted(d for d in sweep_dir.iterdir() if d.is_dir()):
-                target = data_dir / sweep / run_dir.name
-                if export_if_stale(run_dir, target):
-                    written.append(target)
+        for root in ("", *AGENT_PANELS):
+            sweep_dir = runs_dir / root / sweep
+            if sweep_dir.is_dir():
+                for run_dir in sorted(d for d in sweep_dir.iterdir() if d.is_dir()):
+                    target = data_dir / root / sweep / run_dir.name
+                    if export_if_stale(run_dir, target):
+                        written.append(target)
     return written
 
 
@@ -130,10 +138,11 @@ def _multirun(
 ) -> list[str]:
     """``python -m frl.train -m`` of a figure's preset into its sweep and data
     directories; ``leading`` overrides before those, ``trailing`` after."""
+    sweep_dir = SWEEP_DIRS.get(sweep, Path(sweep))
     return [
         sys.executable, "-m", "frl.train", "-m", f"+experiment={sweep}", *leading,
-        f"hydra.sweep.dir={runs_dir / sweep}",
-        f"hydra.callbacks.export_run.data_dir={data_dir / sweep}",
+        f"hydra.sweep.dir={runs_dir / sweep_dir}",
+        f"hydra.callbacks.export_run.data_dir={data_dir / sweep_dir}",
         *trailing,
     ]  # fmt: skip
 
@@ -186,7 +195,8 @@ def main(argv: list[str] | None = None) -> int:
         "after -- are passed to every sweep as Hydra overrides.",
     )
     parser.add_argument("--figures", default=",".join(DEFAULT_FIGURES),
-                        help="comma-separated, in order, from fig3, fig4, fig5 (= fig4), fig6 "
+                        help="comma-separated, in order, from fig3, fig4, fig5 (= fig4), fig6, "
+                        "fig4-guided (= fig5-guided: the guided agent's panel) "
                         "(default %(default)s)")  # fmt: skip
     parser.add_argument("--seeds", default="0,1,2", help="default %(default)s")
     parser.add_argument("--runs-dir", type=Path, default=DEFAULT_RUNS_DIR,

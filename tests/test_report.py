@@ -3,6 +3,7 @@ export, missing runs and bad input."""
 
 import json
 import math
+import shutil
 from types import SimpleNamespace
 
 import numpy as np
@@ -350,6 +351,16 @@ def test_export_callback_and_export_only_skip_what_is_current(root, tmp_path):
     written = export_finished(root, tmp_path / "data")
     assert exported not in written and len(written) == 9  # everything else; not unfinished
     assert export_finished(root, tmp_path / "data") == []
+
+
+def test_export_only_exports_the_agent_panels_in_their_layout(root, tmp_path):
+    runs = tmp_path / "runs"
+    shutil.copytree(root / "fig4" / "fedavg-seed0", runs / "guided" / "fig4" / "fedavg-seed0")
+
+    written = export_finished(runs, tmp_path / "data")
+
+    assert written == [tmp_path / "data" / "guided" / "fig4" / "fedavg-seed0"]
+    assert load_run(written[0]).results == load_run(root / "fig4" / "fedavg-seed0").results
 
 
 def test_a_failed_job_is_logged_when_it_ends_not_when_the_sweep_does(root, tmp_path, caplog):

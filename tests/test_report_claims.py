@@ -2,6 +2,7 @@
 claims, yardstick and Table II blocks, on synthetic runs with hand-computed numbers."""
 
 import math
+import shutil
 
 import pytest
 from report_helpers import TASKS, evaluation, make_run
@@ -131,6 +132,37 @@ def test_the_report_tabulates_claims_draws_yardsticks_and_the_table_ii_agent(roo
         assert written[name].exists() and f"<!-- frl.report:begin {name} -->" in text
     assert "<!-- frl.report:begin claims-paper-agent -->" in text
     assert "| FedAvg-DDPG | left | 1 | 2.50 (n=1) |" in text
+
+
+def _block(text: str, name: str) -> str:
+    return text[text.index(f"begin {name} -->") : text.index(f"end {name} -->")]
+
+
+def test_the_guided_agent_is_a_panel_of_its_own_never_mixed_in(root, tmp_path):
+    mine = tmp_path / "root"
+    shutil.copytree(root, mine)
+    build_report(mine, tmp_path / "without" / "results.md", settings=SETTINGS)
+    curves = {"fedavg": [(10, 5.0), (20, 6.5)], "separate": [(10, 7.0), (20, 5.0), (30, 6.0)]}
+    for seed in (0, 1):  # FedAvg's tested return holds 6 from step 20, Sep-DDPG's from 30
+        for scheme, curve in curves.items():
+            run_dir = mine / "guided" / "fig4" / f"{scheme}-seed{seed}"
+            tested = evaluation(6.5, 0.05, 40)
+            make_run(run_dir, scheme, seed, total_steps=30, evaluation=tested, round_tests=curve)
+
+    written = build_report(mine, tmp_path / "with" / "results.md", settings=SETTINGS)
+
+    without, text = ((tmp_path / edition / "results.md").read_text()
+                     for edition in ("without", "with"))  # fmt: skip
+    for name in ("claims", "fig4", "fig5", "runs"):  # the default agent's blocks: untouched
+        assert _block(text, name) == _block(without, name)
+    for name in ("fig4-guided", "fig5-guided"):
+        assert written[name].exists() and f"<!-- frl.report:begin {name} -->" in text
+    guided = _block(text, "claims-guided")
+    assert "| 4 | FedAvg-DDPG's tested return holds 6 | step 4,593 (training reward) |" in guided
+    assert "| 20.0 ± 0.0 steps | held at 2 of 2 seeds |" in guided
+    assert "| 50.0 ± 0.0% |" in guided  # Sep-DDPG: 30 steps against 20, at both seeds
+    assert "fedavg-seed1" in _block(text, "runs-guided")
+    assert "guided" not in _block(text, "runs")
 
 
 def test_gap_acceptance_rows_appear_only_for_runs_tested_beside_it(root, tmp_path):

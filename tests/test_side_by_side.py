@@ -7,6 +7,7 @@ import time
 from types import SimpleNamespace
 
 import pytest
+from train_helpers import compose_config
 
 from frl import reproduce, side_by_side
 from frl.side_by_side import (
@@ -79,6 +80,21 @@ def test_reproduce_gives_each_job_its_own_multirun_and_share(capsys):
     assert len(lines) == 6
     assert "-m +experiment=fig4 seed=1 federation=separate agent=ddpg-paper cores=1" in lines[4]
     assert all("hydra.sweep.dir=outputs/repro/runs/fig4" in line for line in lines)
+
+
+def test_the_guided_panel_is_fig4_on_the_guided_agent_under_guided(capsys):
+    assert reproduce.main(["--jobs", "2", "--dry-run", "--figures", "fig5-guided",
+                           "--seeds", "3", "--runs-dir", "r", "--data-dir", "d"]) == 0  # fmt: skip
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3  # the three schemes; fig5-guided is fig4-guided's runs
+    assert all("-m +experiment=fig4-guided seed=3 federation=" in line for line in lines)
+    assert all("hydra.sweep.dir=r/guided/fig4 hydra.callbacks.export_run.data_dir=d/guided/fig4"
+               in line for line in lines)  # fmt: skip
+    assert sweeper_params("fig4-guided") == sweeper_params("fig4")
+    guided, default = (compose_config(None, [f"+experiment={name}"])
+                       for name in ("fig4-guided", "fig4"))  # fmt: skip
+    assert guided.agent.guide == "gap_acceptance" and default.agent.guide == "none"
+    assert guided.round_test_episodes == default.round_test_episodes == 20
 
 
 def test_reproduce_refuses_more_jobs_than_cores(capsys):

@@ -11,20 +11,13 @@ from pathlib import Path
 from frl.fileio import write_bytes_atomic
 from frl.report import aggregate, claims, markdown, plots
 from frl.report.aggregate import CurveSettings
-from frl.report.collect import Collection, collect
+from frl.report.collect import AGENT_PANELS, Collection, collect
 
 log = logging.getLogger("frl.report")
 
 DEFAULT_OUT = Path("outputs/results.md")
 """Where ``python -m frl.report`` writes unless ``--out`` says (``docs/results.md``: the
 published report)."""
-PAPER_AGENT_DIR = "paper-agent"
-"""A reproduction root's optional second root, laid out like it, with Figs. 4 and 5
-trained on the paper's Table II agent (``agent=ddpg-paper``)::
-
-    python -m frl.reproduce --figures fig4 --runs-dir outputs/repro/runs/paper-agent \\
-        --data-dir docs/results/data/paper-agent --no-report -- agent=ddpg-paper
-"""
 
 
 class MissingDependency(RuntimeError):
@@ -92,19 +85,30 @@ def build_report(
         ),
         "runs": markdown.runs_block(collection),
     }
-    paper_agent = collection.root / PAPER_AGENT_DIR
-    if paper_agent.is_dir():
-        table_ii = collect(paper_agent)
-        blocks.update(_fig4_fig5_blocks(table_ii, settings, image, suffix=f"-{PAPER_AGENT_DIR}"))
-        blocks[f"claims-{PAPER_AGENT_DIR}"] = markdown.claims_block(
-            claims.fig4_fig5_claims(table_ii.of("fig4"), settings)
-        )
-        blocks[f"runs-{PAPER_AGENT_DIR}"] = markdown.runs_block(table_ii)
+    for panel in AGENT_PANELS:
+        if (collection.root / panel).is_dir():
+            blocks.update(_panel_blocks(collect(collection.root / panel), settings, image, panel))
     existing = out.read_text() if out.exists() else None
     write_bytes_atomic(out, markdown.merge(existing, blocks).encode())
     written["report"] = out
     log.info("wrote %s (%d runs)", out, collection.count)
     return written
+
+
+def _panel_blocks(
+    panel: Collection,
+    settings: CurveSettings,
+    image: Callable[[str, Callable[[Path], Path]], str | None],
+    name: str,
+) -> dict[str, str]:
+    """An agent panel's blocks: its claims, Figs. 4 and 5 and its runs, named ``-name``."""
+    return {
+        **_fig4_fig5_blocks(panel, settings, image, suffix=f"-{name}"),
+        f"claims-{name}": markdown.claims_block(
+            claims.fig4_panel_claims(panel.of("fig4"), settings)
+        ),
+        f"runs-{name}": markdown.runs_block(panel),
+    }
 
 
 def _fig4_fig5_blocks(

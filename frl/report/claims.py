@@ -312,6 +312,16 @@ def fig3_claims(balanced: list[RunRecord], reference: list[RunRecord]) -> list[C
     ]  # fmt: skip
 
 
+def fig4_panel_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Claim]:
+    """Figs. 4 and 5's claims, with the convergence claims both ways: on the training curve
+    and on the per-round test curve."""
+    return [
+        *fig4_fig5_claims(runs, settings),
+        *hold_claims(runs, settings, training_curve(settings), "training reward"),
+        *hold_claims(runs, settings, per_round_test_curve, "tested return"),
+    ]
+
+
 def all_claims(collection: Collection, settings: CurveSettings) -> list[Claim]:
     """Every claim the runs of ``collection`` can test (rows marked not run otherwise)."""
     by_reward = {key: runs for key, (runs, _) in fig3_runs(collection).items()}
@@ -319,8 +329,6 @@ def all_claims(collection: Collection, settings: CurveSettings) -> list[Claim]:
     reference = [run for key, runs in by_reward.items() if key[0] == "reference" for run in runs]
     return [
         *fig3_claims(balanced or [], reference),
-        *fig4_fig5_claims(collection.of("fig4"), settings),
-        *hold_claims(collection.of("fig4"), settings, training_curve(settings), "training reward"),
-        *hold_claims(collection.of("fig4"), settings, per_round_test_curve, "tested return"),
+        *fig4_panel_claims(collection.of("fig4"), settings),
         *fig6_claims({i: runs for i, (runs, _) in fig6_runs(collection).items()}, settings),
     ]

@@ -7,6 +7,8 @@ The layout, made by ``python -m frl.reproduce`` (run directories) and by its exp
     ROOT/fig6/interval{N}-seed{k}/                  Fig. 6 (interval 2000: fig4's fedavg runs)
     ROOT/fig3/{reward}-seed{k}/                     Fig. 3 (the paper reward: fig4's runs of
                                                     the tuning scheme)
+    ROOT/{panel}/fig4/{scheme}-seed{k}/             Figs. 4 and 5 of another agent, a panel
+                                                    of its own (AGENT_PANELS)
 
 Runs are grouped by what their ``results.json`` and ``config.yaml`` say, not by their
 directory names, so a user's own sweep laid out this way is read the same way.
@@ -24,6 +26,12 @@ from frl.run_directory import CONFIG_FILE, RESULTS_FILE, STATE_FILE
 FIGURE_DIRS: tuple[str, ...] = ("fig4", "fig6", "fig3")
 """Sweep directories; Fig. 5 is read from fig4's runs."""
 FIGURES: tuple[str, ...] = ("fig3", "fig4", "fig5", "fig6")
+AGENT_PANELS: tuple[str, ...] = ("guided", "paper-agent")
+"""Optional second roots under a reproduction root, each laid out like it, with Figs. 4
+and 5 trained on another agent: ``guided`` (``agent=ddpg-guided``, which learns from the
+gap-acceptance rule; ``python -m frl.reproduce --figures fig4-guided``) and
+``paper-agent`` (the paper's Table II agent, ``agent=ddpg-paper``). Each is reported as a
+panel of its own, never mixed with the default agent's runs."""
 
 
 @dataclass
