@@ -13,7 +13,7 @@ prints each run's test table averaged over the tasks beside full throttle, the
 gap-acceptance driver and the oracle on the same seeds; per scheme the means with 95% t
 intervals over seeds and the differences paired seed by seed against FedAvg-DDPG, full
 throttle and the gap-acceptance driver; and whether FedAvg-DDPG clears the bar of
-docs/results.md (mean return >= 6.0, collisions <= 9%, arrivals >= 90%, no seed below 5.5).
+docs/studies.md (mean return >= 6.0, collisions <= 9%, arrivals >= 90%, no seed below 5.5).
 """
 
 from __future__ import annotations

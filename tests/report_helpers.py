@@ -36,10 +36,10 @@ def make_run(
     total_bytes: int = 0,
     wall_time_s: float = 60.0,
     learning_starts: int = 0,
-    round_tests: list[tuple[int, float]] | None = None,
+    round_tests: list[tuple[float, ...]] | None = None,
 ) -> Path:
     """A finished run. ``episodes``: per client, (end step, return) pairs; ``round_tests``:
-    the per-round test curve's (step, mean test return) points."""
+    the per-round test curve's (step, mean test return[, collisions, arrivals]) points."""
     clients = (
         ["client0_random"]
         if scheme == "central"
@@ -87,9 +87,14 @@ def make_run(
     if evaluation is not None:
         results["evaluation"] = evaluation
     if round_tests is not None:
+        names = ("average_reward", "collision_rate", "arrival_rate")
         points = [
-            {"step": step, "per_task": {}, "average": {"average_reward": value}}
-            for step, value in round_tests
+            {
+                "step": point[0],
+                "per_task": {},
+                "average": dict(zip(names[: len(point) - 1], point[1:], strict=True)),
+            }
+            for point in round_tests
         ]
         results["round_tests"] = {"episodes_per_task": 20, "points": points}
     write_json_atomic(run_dir / "results.json", results)

@@ -170,6 +170,34 @@ def test_a_resumed_runs_wall_time_counts_every_session_and_the_test(tmp_path):
     assert load_run(run_dir).wall_time_s == 730.0
 
 
+def test_the_tested_curve_is_tabulated_per_round_over_the_seeds_each_run_has(tmp_path):
+    # Seed 0 waits out round 1 (no arrival), then crosses; seed 1 has a third round that
+    # seed 0 lacks, so only the two shared rounds are tabulated.
+    curves = {
+        0: [(10, 5.4, 0.0, 0.0), (20, 6.2, 0.05, 0.95)],
+        1: [(10, 6.0, 0.1, 0.9), (20, 5.8, 0.05, 0.95), (30, 6.5, 0.0, 1.0)],
+    }
+    for seed, curve in curves.items():
+        make_run(tmp_path / "fig4" / f"fedavg-seed{seed}", "fedavg", seed, round_tests=curve)
+    make_run(tmp_path / "fig4" / "central-seed0", "central", 0)  # made without the curve
+
+    tested = aggregate.tested_curves(collect(tmp_path), SETTINGS)
+    written = build_report(tmp_path, tmp_path / "r.md", settings=SETTINGS)
+
+    assert list(tested) == ["fedavg"]
+    fed = tested["fedavg"]
+    assert fed.steps == [10, 20] and fed.seeds == [0, 1] and fed.holds == [20, 30]
+    returns = fed.metrics["average_reward"]
+    assert returns[0].mean == pytest.approx(5.7) and returns[1].mean == pytest.approx(6.0)
+    assert returns[0].half_width == pytest.approx(12.7062 * 0.3, rel=1e-4)  # t(0.975, 1)
+    assert [e.mean for e in fed.metrics["arrival_rate"]] == pytest.approx([0.45, 0.95])
+    text = (tmp_path / "r.md").read_text()
+    assert written["fig4-tested"].exists()
+    assert "The step from which the tested return holds 6: seed 0: 20, seed 1: 30." in text
+    assert "| arrivals | 45.0 ± 571.8% | 95.0 ± 0.0% |" in text
+    assert "**Central-DDPG**: not run yet." in text
+
+
 def test_fig6_borrows_the_fig4_interval_and_fig3_the_paper_reward(root):
     collection = collect(root)
 

@@ -157,6 +157,10 @@ def test_the_guided_agent_is_a_panel_of_its_own_never_mixed_in(root, tmp_path):
         assert _block(text, name) == _block(without, name)
     for name in ("fig4-guided", "fig5-guided"):
         assert written[name].exists() and f"<!-- frl.report:begin {name} -->" in text
+    # Without its runs the template's guided section says how to make them.
+    hint = "needs `guided/fig4/` runs: `python -m frl.reproduce --figures fig4-guided`"
+    assert hint in _block(without, "claims-guided") and hint in _block(without, "runs-guided")
+    assert hint not in text
     guided = _block(text, "claims-guided")
     assert "| 4 | FedAvg-DDPG's tested return holds 6 | step 4,593 (training reward) |" in guided
     assert "| 20.0 ± 0.0 steps | held at 2 of 2 seeds |" in guided

@@ -55,7 +55,7 @@ def _require(condition: bool, message: str) -> None:
 @dataclass(frozen=True)
 class DDPGConfig:
     """DDPG hyperparameters: the paper's Table II where it gives a value, plus frl's
-    choices that its learning studies credited (docs/results.md): 5-step targets, held
+    choices that its learning studies credited (docs/studies.md): 5-step targets, held
     warm-up actions, an actor learning by inverting gradients, and bf16 matmuls where the
     hardware has them. For a grid observation frl's training adds the vehicles encoder
     (``agent=ddpg``); ``agent=ddpg-paper`` is Table II exactly.
@@ -101,7 +101,7 @@ class DDPGConfig:
     warmup_hold_steps: float = 20.0
     """Mean steps each uniform warm-up action is held (geometric durations); 1: a new
     action every step (Table II's SB3). Held actions drive long stretches of braking and
-    of accelerating, so the first updates see waiting and going (docs/results.md)."""
+    of accelerating, so the first updates see waiting and going (docs/studies.md)."""
     explore_hold_probability: float = 0.0
     """After the warm-up, the chance per decision that exploration drives a uniform action
     held for a geometric stretch (mean ``warmup_hold_steps``) instead of the policy's
@@ -122,7 +122,7 @@ class DDPGConfig:
     n_step: int = 5
     """Steps summed in each critic target before bootstrapping (1: the one-step target of
     Table II). Five carry an arrival's +5 back to the decision to go five times faster
-    (docs/results.md)."""
+    (docs/studies.md)."""
     twin_critics: bool = False
     """TD3's clipped double Q (Fujimoto et al. 2018): two critics, each trained towards
     the smaller of their two targets, against the overestimation of a lone critic; the

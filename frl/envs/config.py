@@ -170,7 +170,7 @@ TRAFFIC_PRESETS: dict[str, dict[str, Any]] = {
 - ``paper`` (the default): one car per 10 s per flow, 4.0 m lanes, speed deviation 0.1,
   the traffic of the scenario's lineage, whose numbers match the paper's;
 - ``dense``: one car per 4 s per flow, 3.2 m lanes, no speed deviation: frl's traffic
-  before the calibration (the first edition of docs/results.md), a harder setting.
+  before the calibration (the first edition, docs/results/edition1.md), a harder setting.
 
 ``python -m frl.train traffic=dense`` selects one; fields stay overridable.
 """

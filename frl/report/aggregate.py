@@ -19,7 +19,14 @@ import numpy as np
 from frl.report.collect import Collection
 from frl.report.measures import paired, per_seed, task_metrics, test_metric, yardstick_metric
 from frl.report.runs import RunRecord
-from frl.report.stats import Estimate, band, episode_return_curve, first_crossing, mean_ci
+from frl.report.stats import (
+    Estimate,
+    band,
+    episode_return_curve,
+    first_crossing,
+    first_hold,
+    mean_ci,
+)
 from frl.report.stats import moving_average as _moving_average
 
 SCHEMES: tuple[str, ...] = ("central", "separate", "fedavg")
@@ -142,11 +149,63 @@ def fig4(collection: Collection, settings: CurveSettings) -> dict[str, SchemeCur
     return {s: scheme_curves(by_scheme[s], settings) for s in SCHEMES if s in by_scheme}
 
 
+TESTED_CURVE_METRICS: tuple[str, ...] = ("average_reward", "collision_rate", "arrival_rate")
+"""What the per-round test curve shows: a return alone would call a model that waits out
+every episode nearly converged (the reward pays for waiting), so arrivals go beside it."""
+
+
+@dataclass
+class TestedCurve:
+    """One scheme's per-round test curve (``round_test_episodes``) over its seeds."""
+
+    scheme: str
+    seeds: list[int]
+    steps: list[int]
+    """The rounds' last steps that every seed's run has."""
+    metrics: dict[str, list[Estimate]]
+    """Per metric of :data:`TESTED_CURVE_METRICS`, one estimate over the seeds a step."""
+    holds: list[int | None]
+    """Per seed: the first step from which the tested return holds the threshold."""
+    episodes_per_task: int | None
+
+
+def tested_curve(runs: list[RunRecord], settings: CurveSettings) -> TestedCurve:
+    """The per-round test curve of one scheme's runs (each made with the curve on)."""
+    runs = sorted(runs, key=lambda r: r.seed)
+    by_run = [{m: dict(zip(*r.round_test_metric(m), strict=True)) for m in TESTED_CURVE_METRICS}
+              for r in runs]  # fmt: skip
+    returns = [r.round_test_curve for r in runs]
+    shared = set.intersection(*(set(table["average_reward"]) for table in by_run))
+    steps = sorted(shared)
+    metrics = {
+        metric: [mean_ci([table[metric][step] for table in by_run]) for step in steps]
+        for metric in TESTED_CURVE_METRICS
+    }
+    holds = [first_hold(*curve, settings.threshold) for curve in returns if curve is not None]
+    episodes = {r.round_test_episodes for r in runs}
+    return TestedCurve(
+        scheme=runs[0].scheme,
+        seeds=[r.seed for r in runs],
+        steps=steps,
+        metrics=metrics,
+        holds=holds,
+        episodes_per_task=episodes.pop() if len(episodes) == 1 else None,
+    )
+
+
+def tested_curves(collection: Collection, settings: CurveSettings) -> dict[str, TestedCurve]:
+    """Per scheme present in ``fig4/`` with the per-round test curve."""
+    tested = [r for r in collection.of("fig4") if r.round_test_curve is not None]
+    by_scheme = group(tested, lambda r: r.scheme)
+    return {s: tested_curve(by_scheme[s], settings) for s in SCHEMES if s in by_scheme}
+
+
 # ---------------------------------------------------------------- test tables
 # The Fig. 5 subset of frl.episodes.METRIC_NAMES: the report tabulates these per task.
 SUMMARISED_TEST_METRICS: tuple[str, ...] = (
     "average_reward",
     "collision_rate",
+    "arrival_rate",
     "average_episode_steps",
     "average_travel_time",
 )

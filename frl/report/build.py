@@ -85,14 +85,29 @@ def build_report(
         ),
         "runs": markdown.runs_block(collection),
     }
-    for panel in AGENT_PANELS:
+    existing = out.read_text() if out.exists() else None
+    for panel, command in AGENT_PANELS.items():
         if (collection.root / panel).is_dir():
             blocks.update(_panel_blocks(collect(collection.root / panel), settings, image, panel))
-    existing = out.read_text() if out.exists() else None
+        elif _asks_for(existing, f"claims-{panel}"):
+            # The file asks for the panel: say it is not run rather than keep stale blocks.
+            missing = f"_{markdown.NOT_RUN}_ (needs `{panel}/fig4/` runs: `{command}`)."
+            blocks.update({f"{name}-{panel}": missing for name in PANEL_BLOCKS})
     write_bytes_atomic(out, markdown.merge(existing, blocks).encode())
     written["report"] = out
     log.info("wrote %s (%d runs)", out, collection.count)
     return written
+
+
+def _asks_for(existing: str | None, name: str) -> bool:
+    """Whether the report being merged into (the template for a new one) has block ``name``."""
+    if existing is None:
+        return f"{{{name}}}" in markdown.TEMPLATE
+    return f"<!-- frl.report:begin {name} -->" in existing
+
+
+PANEL_BLOCKS = ("claims", "fig4", "fig4-tested", "fig5", "runs")
+"""The blocks of an agent panel, each named ``NAME-PANEL`` in the report."""
 
 
 def _panel_blocks(
@@ -120,9 +135,21 @@ def _fig4_fig5_blocks(
     """Figs. 4 and 5 of one collection's ``fig4/`` runs, blocks and images named with
     ``suffix``."""
     curves = aggregate.fig4(collection, settings)
+    tested = aggregate.tested_curves(collection, settings)
     summaries = aggregate.fig5(collection)
     yardsticks = aggregate.fig5_yardsticks(collection)
     return {
+        f"fig4-tested{suffix}": markdown.fig4_tested_block(
+            tested,
+            settings,
+            image(
+                f"fig4-tested{suffix}",
+                lambda p: plots.plot_fig4_tested(tested, settings, p, yardsticks),
+            )
+            if tested
+            else None,
+            yardsticks,
+        ),
         f"fig4{suffix}": markdown.fig4_block(
             curves,
             settings,

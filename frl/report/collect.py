@@ -26,12 +26,16 @@ from frl.run_directory import CONFIG_FILE, RESULTS_FILE, STATE_FILE
 FIGURE_DIRS: tuple[str, ...] = ("fig4", "fig6", "fig3")
 """Sweep directories; Fig. 5 is read from fig4's runs."""
 FIGURES: tuple[str, ...] = ("fig3", "fig4", "fig5", "fig6")
-AGENT_PANELS: tuple[str, ...] = ("guided", "paper-agent")
+AGENT_PANELS: dict[str, str] = {
+    "guided": "python -m frl.reproduce --figures fig4-guided",
+    "paper-agent": "python -m frl.reproduce --figures fig4 --runs-dir outputs/repro/runs/"
+    "paper-agent --data-dir outputs/repro/data/paper-agent -- agent=ddpg-paper",
+}
 """Optional second roots under a reproduction root, each laid out like it, with Figs. 4
-and 5 trained on another agent: ``guided`` (``agent=ddpg-guided``, which learns from the
-gap-acceptance rule; ``python -m frl.reproduce --figures fig4-guided``) and
-``paper-agent`` (the paper's Table II agent, ``agent=ddpg-paper``). Each is reported as a
-panel of its own, never mixed with the default agent's runs."""
+and 5 trained on another agent, and the command that makes each: ``guided``
+(``agent=ddpg-guided``, which learns from the gap-acceptance rule) and ``paper-agent``
+(the paper's Table II agent). Each is reported as a panel of its own, never mixed with
+the default agent's runs."""
 
 
 @dataclass

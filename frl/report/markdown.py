@@ -19,11 +19,13 @@ from frl.report.aggregate import (
     SCHEME_LABELS,
     SCHEMES,
     TASKS,
+    TESTED_CURVE_METRICS,
     CurveSettings,
     EvalSummary,
     IntervalPoint,
     RewardPoint,
     SchemeCurves,
+    TestedCurve,
     fig3_runs,
     fig6_runs,
 )
@@ -33,7 +35,6 @@ from frl.report.runs import RunRecord
 from frl.report.stats import CONFIDENCE, Estimate
 
 NOT_RUN = "not run yet"
-BLOCKS: tuple[str, ...] = ("claims", "method", "fig3", "fig4", "fig5", "fig6", "runs")
 PAPER_CROSSING = {"fedavg": 4593, "separate": 6068, "central": 9841}
 PAPER_SPEEDUP = {"separate": 32.11, "central": 114.26}
 PAPER_FINAL_GAIN = 21.00
@@ -46,13 +47,13 @@ Built by `python -m frl.report`. The blocks between `<!-- frl.report:begin ... -
 `<!-- frl.report:end ... -->` are rewritten on every build; everything else is
 hand-written and kept.
 
-## Summary
-
-_Not written yet: what reproduced and what did not, from the tables below._
-
 ## The paper's claims
 
 {claims}
+
+## Summary
+
+_Not written yet: what reproduced and what did not, from the tables below._
 
 ## How the numbers were made
 
@@ -68,6 +69,10 @@ _Discussion not written yet._
 
 {fig4}
 
+### Fig. 4 without exploration noise: the per-round test curve
+
+{fig4-tested}
+
 _Discussion not written yet._
 
 ## Fig. 5: test performance per task
@@ -82,11 +87,25 @@ _Discussion not written yet._
 
 _Discussion not written yet._
 
+## Figs. 4 and 5 with the guided agent
+
+{claims-guided}
+
+{fig4-guided}
+
+{fig4-tested-guided}
+
+{fig5-guided}
+
+{runs-guided}
+
 ## Figs. 4 and 5 with the paper's agent (Table II)
 
 {claims-paper-agent}
 
 {fig4-paper-agent}
+
+{fig4-tested-paper-agent}
 
 {fig5-paper-agent}
 
@@ -321,6 +340,72 @@ def fig4_block(
     return text + yardstick_returns(yardsticks)
 
 
+TESTED_METRIC_LABELS = {
+    "average_reward": "tested return",
+    "collision_rate": "collisions",
+    "arrival_rate": "arrivals",
+}
+
+
+def fig4_tested_block(
+    curves: dict[str, TestedCurve],
+    settings: CurveSettings,
+    image: str | None,
+    yardsticks: dict[str, EvalSummary] | None = None,
+) -> str:
+    """Fig. 4 without exploration noise: each scheme's deployed model tested every round."""
+    if not curves:
+        return (
+            f"_{NOT_RUN}_ (needs `fig4/` runs made with the per-round test curve: "
+            "`round_test_episodes=N`, on in the fig4 preset)."
+        )
+    threshold = f"{settings.threshold:g}"
+    text = _image(image, "Fig. 4, tested every round")
+    for scheme in SCHEMES:
+        c = curves.get(scheme)
+        if c is None:
+            text += f"**{SCHEME_LABELS[scheme]}**: {NOT_RUN}.\n\n"
+            continue
+        holds = ", ".join(
+            f"seed {seed}: {'never' if step is None else f'{step:,}'}"
+            for seed, step in zip(c.seeds, c.holds, strict=True)
+        )
+        text += (
+            f"**{SCHEME_LABELS[scheme]}** over {len(c.seeds)} seed{'s' * (len(c.seeds) > 1)}. "
+            f"The step from which the tested return holds {threshold}: {holds}.\n\n"
+        )
+        rows = [
+            [TESTED_METRIC_LABELS[metric], *(fmt(e, 1 if metric != "average_reward" else 2,
+                                                 percent=metric != "average_reward")
+                                             for e in estimates)]
+            for metric, estimates in c.metrics.items()
+        ]  # fmt: skip
+        text += table(["step", *(f"{step:,}" for step in c.steps)], rows) + "\n\n"
+    episodes = {c.episodes_per_task for c in curves.values()}
+    per_task = f"{episodes.pop()} episodes" if len(episodes) == 1 else "a few episodes"
+    text += (
+        f"After every round the deployed model (FedAvg's global model, each Sep-DDPG "
+        f"vehicle on its own task, Central-DDPG's one agent) is tested with exploration off "
+        f"on {per_task} per task, the same fixed seeds every round, none of them a final test "
+        f"seed. One point a round: a hold can only be placed at a round's end, a resolution "
+        f"of one interval. Read arrivals beside the return: the reward pays for waiting, so "
+        f"a model that stands still until the time-out tests about 5.4."
+    )
+    parts = [
+        f"{name.replace('_', ' ')} "
+        + " / ".join(fmt(summary.metrics.get("average", {}).get(metric), 2 if i == 0 else 1,
+                         percent=i > 0) for i, metric in enumerate(TESTED_CURVE_METRICS))
+        for name, summary in (yardsticks or {}).items()
+    ]  # fmt: skip
+    if parts:
+        text += (
+            "\n\nReference lines: the yardsticks on the final test's seeds (return / "
+            f"collisions / arrivals): {', '.join(parts)}. The round tests drive other "
+            "seeds, so the lines are a guide, not a pairing."
+        )
+    return text
+
+
 def fig5_block(
     summaries: dict[str, EvalSummary],
     image: str | None,
@@ -337,7 +422,7 @@ def fig5_block(
     for label, s in labelled:
         for task in (*TASKS, "average"):
             if s is None:
-                rows.append([label, task, NOT_RUN, "", "", "", ""])
+                rows.append([label, task, NOT_RUN, "", "", "", "", ""])
                 continue
             m = s.metrics.get(task, {})
             rows.append(
@@ -347,6 +432,7 @@ def fig5_block(
                     len(s.seeds),
                     fmt(m.get("average_reward")),
                     fmt(m.get("collision_rate"), 1, percent=True),
+                    fmt(m.get("arrival_rate"), 1, percent=True),
                     fmt(m.get("average_episode_steps"), 1),
                     fmt(m.get("average_travel_time"), 1),
                 ]
@@ -358,6 +444,7 @@ def fig5_block(
             "seeds",
             "test reward",
             "collision rate",
+            "arrival rate",
             "travel time (all)",
             "travel time (arrived)",
         ],

@@ -12,11 +12,13 @@ from frl.fileio import write_bytes_atomic
 from frl.report.aggregate import (
     SCHEME_LABELS,
     TASKS,
+    TESTED_CURVE_METRICS,
     CurveSettings,
     EvalSummary,
     IntervalPoint,
     RewardPoint,
     SchemeCurves,
+    TestedCurve,
 )
 from frl.report.stats import Estimate
 
@@ -100,6 +102,32 @@ def plot_fig4(
     for axis in (left, right):
         axis.grid(alpha=0.3)
         axis.legend(loc="lower right")
+    return _save(figure, path)
+
+
+def plot_fig4_tested(
+    curves: dict[str, TestedCurve],
+    settings: CurveSettings,
+    path: Path,
+    yardsticks: dict[str, EvalSummary] | None = None,
+) -> Path:
+    """The per-round test curve per scheme: tested return, collisions and arrivals, mean
+    and 95% band over seeds; each yardstick's final test as a reference line."""
+    plt = _pyplot()
+    titles = ("tested return", "collision rate", "arrival rate")
+    figure, axes = plt.subplots(1, 3, figsize=(15, 4))
+    for axis, metric, title in zip(axes, TESTED_CURVE_METRICS, titles, strict=True):
+        for scheme, c in curves.items():
+            mean = np.array([_val(e) for e in c.metrics[metric]])
+            half = np.array([_err(e) for e in c.metrics[metric]])
+            label = f"{SCHEME_LABELS[scheme]} (n={len(c.seeds)})"
+            axis.plot(c.steps, mean, marker="o", color=COLORS[scheme], label=label, linewidth=1.2)
+            axis.fill_between(c.steps, mean - half, mean + half, color=COLORS[scheme], alpha=0.2)
+        _yardstick_lines(axis, yardsticks, metric)
+        axis.set(xlabel="training step (per agent)", ylabel=title, title=f"{title}, every round")
+        axis.grid(alpha=0.3)
+    axes[0].axhline(settings.threshold, color="gray", linestyle="--", linewidth=0.8)
+    axes[0].legend(loc="best", fontsize="small")
     return _save(figure, path)
 
 

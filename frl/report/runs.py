@@ -104,11 +104,21 @@ class RunRecord:
     def round_test_curve(self) -> tuple[list[int], list[float]] | None:
         """The per-round test curve (``round_test_episodes``): each round's last step and
         the deployed model's mean test return there; None for a run without it."""
+        return self.round_test_metric("average_reward")
+
+    def round_test_metric(self, metric: str) -> tuple[list[int], list[float]] | None:
+        """Each round's last step and the deployed model's ``metric`` there, averaged over
+        the tasks (NaN where a point lacks it); None for a run without the curve."""
         points = (self.results.get("round_tests") or {}).get("points") or []
         if not points:
             return None
-        returns = [point["average"].get("average_reward") for point in points]
-        return [int(p["step"]) for p in points], [math.nan if r is None else r for r in returns]
+        values = [point["average"].get(metric) for point in points]
+        return [int(p["step"]) for p in points], [math.nan if v is None else v for v in values]
+
+    @property
+    def round_test_episodes(self) -> int | None:
+        """Episodes per task of each per-round test; None for a run without the curve."""
+        return (self.results.get("round_tests") or {}).get("episodes_per_task")
 
     @property
     def reward(self) -> dict[str, Any]:
