@@ -10,6 +10,7 @@ from report_helpers import TASKS, evaluation, make_run
 from frl.report.aggregate import CurveSettings
 from frl.report.build import build_report
 from frl.report.claims import (
+    fig3_claims,
     fig4_fig5_claims,
     fig6_claims,
     hold_claims,
@@ -62,14 +63,44 @@ def test_fig6_takes_the_best_other_interval_seed_by_seed(tmp_path):
                             interval=interval, episodes=episodes)  # fmt: skip
             runs.setdefault(interval, []).append(load_run(path))
 
-    (claim,) = fig6_claims(runs, SETTINGS)
+    claim, short, long = fig6_claims(runs, SETTINGS)
 
     assert claim.note == "best other interval: 2,500, over seeds 1"
     assert claim.ours.mean == pytest.approx(-2.0) and claim.verdict == "one seed: no interval"
+    # Biphasic: 2,000 against the shortest (250) and the longest (2,500) interval.
+    assert short.measure == "final training reward, interval 2,000 - interval 250"
+    assert short.ours.mean == pytest.approx(0.0) and short.ours.n == 2
+    assert long.measure.endswith("interval 2,500") and long.ours.mean == pytest.approx(-2.0)
     del runs[2500]
-    (claim,) = fig6_claims(runs, SETTINGS)
+    claim, short, long = fig6_claims(runs, SETTINGS)
     assert claim.note == "best other interval: 250, over seeds 0, 1"
     assert claim.ours.mean == pytest.approx(0.0) and claim.ours.n == 2
+    assert short.ours == long.ours  # one other interval: the shortest is the longest
+    del runs[250]
+    _, short, long = fig6_claims(runs, SETTINGS)
+    assert short.measure.endswith("the shortest interval") and short.verdict == "not run"
+
+
+def test_fig3_tests_the_weightings_the_paper_discusses_against_its_choice(tmp_path):
+    # Per seed: the balanced weighting takes 50 steps with 10% collisions; the light time
+    # cost 70-74 steps with none; the light collision penalty 45 steps with 20%.
+    def runs(name: str, steps: list[float], collisions: float) -> list:
+        return [load_run(make_run(tmp_path / f"{name}-seed{seed}", "central", seed,
+                                  evaluation=evaluation(5.0, collisions, s)))
+                for seed, s in enumerate(steps)]  # fmt: skip
+
+    balanced = runs("balanced", [50, 50, 50], 0.1)
+    slow, reckless = runs("slow", [70, 72, 74], 0.0), runs("reckless", [45, 45, 45], 0.2)
+
+    claims = {c.claim: c for c in fig3_claims(balanced, [], slow, reckless)}
+
+    slower = claims["a light time cost (α=-0.005, λ=-10) prolongs the travel time"]
+    assert slower.ours.mean == pytest.approx(22.0) and slower.verdict == "holds (significant)"
+    assert claims["... and collides less: none"].ours.mean == pytest.approx(-0.1)
+    riskier = claims["a light collision penalty (α=-0.05, λ=-1) raises collisions"]
+    assert riskier.ours.mean == pytest.approx(0.1) and riskier.paper == "9%"
+    assert claims["... and shortens the travel time (fewer arrive)"].ours.mean == -5.0
+    assert claims["α=-0.05, λ=-10 drives faster than the reference reward"].verdict == "not run"
 
 
 def _with_yardstick(table: dict, reward: float, collisions: float) -> dict:

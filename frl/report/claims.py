@@ -100,6 +100,9 @@ def crossing_step(settings: CurveSettings) -> Metric:
     return read
 
 
+SLOW_RECKLESS = ((-0.005, -10.0), (-0.05, -1.0))
+"""Fig. 3's (alpha, lambda) that the paper discusses beside its choice: a light time cost
+(collision-free but slow) and a light collision penalty (9% collisions)."""
 PAPER_SPEED_UPS = (("separate", "32.11"), ("central", "114.26"))
 """Fig. 4: how many more steps (%) each baseline needs than FedAvg-DDPG to reach 6."""
 
@@ -231,6 +234,13 @@ def fig4_fig5_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Cla
                   f"collision rate ({task}), {fed} - {sep}",
                   diff(test_metric("collision_rate", task), "fedavg", "separate"), -1, "pp")
         )  # fmt: skip
+    # The paper's travel time counts every episode to its end, collisions included.
+    travel = test_metric("average_episode_steps")
+    claims.append(
+        Claim("5", f"... and travels faster than {sep}", "bars only",
+              f"travel time (all episodes, steps), {fed} - {sep}",
+              diff(travel, "fedavg", "separate"), -1, " steps")
+    )  # fmt: skip
     for other in ("separate", "fedavg"):
         label = SCHEME_LABELS[other]
         claims += [
@@ -239,6 +249,9 @@ def fig4_fig5_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Cla
             Claim("5", f"{central} collides most: more than {label}", "bars only",
                   f"collision rate, {central} - {label}", diff(collisions, "central", other),
                   +1, "pp"),
+            Claim("5", f"{central} travels slowest: slower than {label}", "bars only",
+                  f"travel time (all episodes, steps), {central} - {label}",
+                  diff(travel, "central", other), +1, " steps"),
         ]  # fmt: skip
     blind = of("fedavg", yardstick_metric("full_throttle", "average_reward"))
     blind_collisions = of("fedavg", yardstick_metric("full_throttle", "collision_rate"))
@@ -292,23 +305,56 @@ def fig6_claims(
         estimate = shared[best]
         seeds = ", ".join(str(s) for s in sorted(set(paper or {}) & set(others[best])))
         note = f"best other interval: {best:,}, over seeds {seeds}"
-    return [
+    claims = [
         Claim("6", f"aggregating every {PAPER_INTERVAL:,} steps is best, the curve biphasic",
               "6.84 at 2,000", f"final training reward, interval {PAPER_INTERVAL:,} - the best "
               "other interval", estimate, +1, note=note),
     ]  # fmt: skip
+    # Biphasic: the shortest and the longest interval both end below 2,000.
+    ends = {"short": min(others, default=None), "long": max(others, default=None)}
+    for end, interval in ends.items():
+        other = f"interval {interval:,}" if interval else f"the {end}est interval"
+        estimate = paired(paper or {}, others[interval]) if interval else None
+        claims.append(
+            Claim("6", f"... an excessively {end} interval lowers the reward", "below 6.84",
+                  f"final training reward, interval {PAPER_INTERVAL:,} - {other}", estimate, +1)
+        )  # fmt: skip
+    return claims
 
 
-def fig3_claims(balanced: list[RunRecord], reference: list[RunRecord]) -> list[Claim]:
-    """Fig. 3: alpha -0.05, lambda -10 against the reference reward."""
+def fig3_claims(
+    balanced: list[RunRecord],
+    reference: list[RunRecord],
+    slow: list[RunRecord] = (),  # type: ignore[assignment]
+    reckless: list[RunRecord] = (),  # type: ignore[assignment]
+) -> list[Claim]:
+    """Fig. 3: alpha -0.05, lambda -10 against the reference reward, and the two weightings
+    the paper discusses (``slow``: alpha -0.005, lambda -10; ``reckless``: alpha -0.05,
+    lambda -1) against it."""
     steps, collisions = test_metric("average_episode_steps"), test_metric("collision_rate")
+
+    def diff(metric: Metric, a: list[RunRecord], b: list[RunRecord]) -> Estimate | None:
+        return paired(per_seed(a, metric), per_seed(b, metric))
+
     return [  # the paper's "travel time" counts every episode to its end
         Claim("3", "α=-0.05, λ=-10 drives faster than the reference reward", "-6.49%",
               "travel time (all episodes, steps), α=-0.05, λ=-10 - reference",
-              paired(per_seed(balanced, steps), per_seed(reference, steps)), -1, " steps"),
+              diff(steps, balanced, reference), -1, " steps"),
         Claim("3", "... at slightly more collisions", "+1 pp",
               "collision rate, α=-0.05, λ=-10 - reference",
-              paired(per_seed(balanced, collisions), per_seed(reference, collisions)), +1, "pp"),
+              diff(collisions, balanced, reference), +1, "pp"),
+        Claim("3", "a light time cost (α=-0.005, λ=-10) prolongs the travel time",
+              "74.83 steps", "travel time (all episodes, steps), α=-0.005, λ=-10 - "
+              "α=-0.05, λ=-10", diff(steps, slow, balanced), +1, " steps"),
+        Claim("3", "... and collides less: none", "0%",
+              "collision rate, α=-0.005, λ=-10 - α=-0.05, λ=-10",
+              diff(collisions, slow, balanced), -1, "pp"),
+        Claim("3", "a light collision penalty (α=-0.05, λ=-1) raises collisions", "9%",
+              "collision rate, α=-0.05, λ=-1 - α=-0.05, λ=-10",
+              diff(collisions, reckless, balanced), +1, "pp"),
+        Claim("3", "... and shortens the travel time (fewer arrive)", "44.87 steps",
+              "travel time (all episodes, steps), α=-0.05, λ=-1 - α=-0.05, λ=-10",
+              diff(steps, reckless, balanced), -1, " steps"),
     ]  # fmt: skip
 
 
@@ -327,8 +373,9 @@ def all_claims(collection: Collection, settings: CurveSettings) -> list[Claim]:
     by_reward = {key: runs for key, (runs, _) in fig3_runs(collection).items()}
     balanced = by_reward.get(PAPER_REWARD_KEY)
     reference = [run for key, runs in by_reward.items() if key[0] == "reference" for run in runs]
+    slow, reckless = (by_reward.get(("paper", alpha, lam)) or [] for alpha, lam in SLOW_RECKLESS)
     return [
-        *fig3_claims(balanced or [], reference),
+        *fig3_claims(balanced or [], reference, slow, reckless),
         *fig4_panel_claims(collection.of("fig4"), settings),
         *fig6_claims({i: runs for i, (runs, _) in fig6_runs(collection).items()}, settings),
     ]
