@@ -361,11 +361,22 @@ def fig3_claims(
 def fig4_panel_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Claim]:
     """Figs. 4 and 5's claims, with the convergence claims both ways: on the training curve
     and on the per-round test curve."""
-    return [
-        *fig4_fig5_claims(runs, settings),
-        *hold_claims(runs, settings, training_curve(settings), "training reward"),
-        *hold_claims(runs, settings, per_round_test_curve, "tested return"),
-    ]
+    return in_figure_order(
+        [
+            *fig4_fig5_claims(runs, settings),
+            *hold_claims(runs, settings, training_curve(settings), "training reward"),
+            *hold_claims(runs, settings, per_round_test_curve, "tested return"),
+        ]
+    )
+
+
+FIGURE_ORDER = ("3", "4", "5", "6", "frl")
+"""The claims table's order: the paper's figures, then frl's own comparisons."""
+
+
+def in_figure_order(claims: list[Claim]) -> list[Claim]:
+    """``claims`` grouped by figure, each figure's rows in the order given."""
+    return sorted(claims, key=lambda claim: FIGURE_ORDER.index(claim.figure))
 
 
 def all_claims(collection: Collection, settings: CurveSettings) -> list[Claim]:
@@ -374,8 +385,10 @@ def all_claims(collection: Collection, settings: CurveSettings) -> list[Claim]:
     balanced = by_reward.get(PAPER_REWARD_KEY)
     reference = [run for key, runs in by_reward.items() if key[0] == "reference" for run in runs]
     slow, reckless = (by_reward.get(("paper", alpha, lam)) or [] for alpha, lam in SLOW_RECKLESS)
-    return [
-        *fig3_claims(balanced or [], reference, slow, reckless),
-        *fig4_panel_claims(collection.of("fig4"), settings),
-        *fig6_claims({i: runs for i, (runs, _) in fig6_runs(collection).items()}, settings),
-    ]
+    return in_figure_order(
+        [
+            *fig3_claims(balanced or [], reference, slow, reckless),
+            *fig4_panel_claims(collection.of("fig4"), settings),
+            *fig6_claims({i: runs for i, (runs, _) in fig6_runs(collection).items()}, settings),
+        ]
+    )

@@ -192,7 +192,7 @@ def claims_block(claims: list[Claim]) -> str:
         if c.unit == "pp":
             ours = ours.replace("%", " pp")
         elif not percent and c.ours:
-            ours += c.unit
+            ours = ours.replace(" (n=1)", f"{c.unit} (n=1)") if " (n=1)" in ours else ours + c.unit
         measure = f"{c.measure} ({c.note})" if c.note else c.measure
         rows.append([c.figure, c.claim, c.paper, measure, ours, c.verdict])
     header = ["Fig.", "claim", "paper", "our measure (paired over seeds)", "ours: mean ± 95% CI",
