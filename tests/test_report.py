@@ -288,7 +288,8 @@ def test_report_writes_figures_and_tables_beside_the_paper(root, tmp_path):
     assert "![Fig. 4](results/fig4.png)" in text
     half = T1 * math.sqrt(50) / math.sqrt(2)
     assert (
-        f"| Central-DDPG | 2 (0, 1) | 10 ± {half:.0f} | 2/2: 15, 5 | 15 | 9,841 | 7.00 ± " in text
+        f"| Central-DDPG | 2 (0, 1) | 10 ± {half:.0f} | 2/2: 15, 5 | 2/2: 15, 5 | 15 | 9,841 "
+        "| 7.00 ± " in text
     )
     assert "| Sep-DDPG | not run yet |" in text
     assert f"| 6.33 ± {T2 * np.std([6, 6, 7], ddof=1) / math.sqrt(3):.2f} |" in text

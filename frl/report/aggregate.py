@@ -100,6 +100,8 @@ class SchemeCurves:
     """Per seed: first step the reward curve reaches the threshold."""
     crossing: Estimate | None
     """Over the seeds that crossed."""
+    holds: list[int | None]
+    """Per seed: the first step from which the reward curve holds the threshold."""
     mean_curve_crossing: int | None
     final_reward: Estimate
     final_step_reward: Estimate | None
@@ -135,6 +137,7 @@ def scheme_curves(runs: list[RunRecord], settings: CurveSettings) -> SchemeCurve
         step_half=step_half,
         crossings=crossings,
         crossing=mean_ci(crossed) if crossed else None,
+        holds=[first_hold(range(1, length + 1), curve, settings.threshold) for curve in rewards],
         mean_curve_crossing=first_crossing(
             reward_mean, settings.threshold, after=max(r.learning_starts for r in runs)
         ),

@@ -271,11 +271,14 @@ def fig4_block(
         c = curves.get(scheme)
         if c is None:
             rows.append(
-                [SCHEME_LABELS[scheme], NOT_RUN, "", "", "", f"{PAPER_CROSSING[scheme]:,}", "", ""]
-            )
+                [SCHEME_LABELS[scheme], NOT_RUN, "", "", "", "", f"{PAPER_CROSSING[scheme]:,}",
+                 "", ""]
+            )  # fmt: skip
             continue
         crossed = sum(x is not None for x in c.crossings)
         per_seed = ", ".join("never" if x is None else f"{x:,}" for x in c.crossings)
+        held = sum(x is not None for x in c.holds)
+        holds = ", ".join("never" if x is None else f"{x:,}" for x in c.holds)
         mean_cross = "never" if c.mean_curve_crossing is None else f"{c.mean_curve_crossing:,}"
         rows.append(
             [
@@ -283,6 +286,7 @@ def fig4_block(
                 _seeds(c.seeds),
                 fmt(c.crossing, 0),
                 f"{crossed}/{len(c.seeds)}: {per_seed}",
+                f"{held}/{len(c.seeds)}: {holds}",
                 mean_cross,
                 f"{PAPER_CROSSING[scheme]:,}",
                 fmt(c.final_reward),
@@ -295,6 +299,7 @@ def fig4_block(
             "seeds",
             f"first step >= {threshold} (seeds that crossed)",
             "crossed: per seed",
+            f"holds {threshold} from: per seed",
             "mean curve crosses at",
             "paper",
             "final reward",
