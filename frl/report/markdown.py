@@ -231,8 +231,14 @@ def method_block(collection: Collection, settings: CurveSettings) -> str:
   about 6.7). "First step >= {settings.threshold:g}" is the first step at which this curve
   reaches {settings.threshold:g}, counted only after the warm-up (`agent.learning_starts`
   steps of random actions, 1,000 in Table II), where a window of one or two lucky
-  episodes can reach it; "final" is its value at the last step. The per-step
+  episodes can reach it; "holds {settings.threshold:g} from" is the first step from which
+  it stays at or above {settings.threshold:g} to the end, the paper's "reaches" read as
+  converged; "final" is its value at the last step. The per-step
   `train/step_reward` ({settings.step_window}-step moving average) is plotted beside it.
+- Tested curve (Fig. 4 without exploration noise, runs made with `round_test_episodes`):
+  after every round, the deployed model tested with exploration off on a few episodes
+  per task of fixed seeds, none of them a final test seed; its holding step is read the
+  same way, at a round's resolution.
 - Test metrics (Figs. 3 and 5): 100 episodes per task after training, exploration off.
   "Travel time (all)" counts every episode to its end, collisions and time-outs
   included (the paper's convention; it makes collisions look fast); "travel time
