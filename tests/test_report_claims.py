@@ -10,6 +10,7 @@ from report_helpers import TASKS, evaluation, make_run
 from frl.report.aggregate import CurveSettings
 from frl.report.build import build_report
 from frl.report.claims import (
+    Claim,
     fig3_claims,
     fig4_fig5_claims,
     fig6_claims,
@@ -41,6 +42,15 @@ T2 = 4.302653  # t(0.975, 2)
 )
 def test_a_verdict_needs_an_interval_that_excludes_zero(estimate, sign, expected):
     assert verdict(estimate, sign) == expected
+
+
+def test_the_claims_table_puts_each_unit_before_a_lone_seeds_marker():
+    rows = [Claim("3", "c", "p", f"m{i}", estimate, +1, unit) for i, (estimate, unit) in
+            enumerate([(Estimate(29.94, None, 1), " steps"), (Estimate(-0.05, 0.01, 3), "pp"),
+                       (Estimate(0.5, None, 1), "%"), (None, " steps")])]  # fmt: skip
+    text = claims_block(rows)
+    assert "| m0 | 29.9 steps (n=1) |" in text and "| m1 | -5.0 ± 1.0 pp |" in text
+    assert "| m2 | 50.0% (n=1) |" in text and "| m3 | – |" in text
 
 
 def test_differences_are_paired_over_the_seeds_both_hold():

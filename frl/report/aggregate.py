@@ -177,14 +177,14 @@ def tested_curve(runs: list[RunRecord], settings: CurveSettings) -> TestedCurve:
     runs = sorted(runs, key=lambda r: r.seed)
     by_run = [{m: dict(zip(*r.round_test_metric(m), strict=True)) for m in TESTED_CURVE_METRICS}
               for r in runs]  # fmt: skip
-    returns = [r.round_test_curve for r in runs]
     shared = set.intersection(*(set(table["average_reward"]) for table in by_run))
     steps = sorted(shared)
     metrics = {
         metric: [mean_ci([table[metric][step] for table in by_run]) for step in steps]
         for metric in TESTED_CURVE_METRICS
     }
-    holds = [first_hold(*curve, settings.threshold) for curve in returns if curve is not None]
+    returns = [table["average_reward"] for table in by_run]  # one per seed, in step order
+    holds = [first_hold(list(r), list(r.values()), settings.threshold) for r in returns]
     episodes = {r.round_test_episodes for r in runs}
     return TestedCurve(
         scheme=runs[0].scheme,

@@ -140,11 +140,15 @@ def merge(existing: str | None, blocks: dict[str, str]) -> str:
 
 
 # ----------------------------------------------------------------- formatting
-def fmt(estimate: Estimate | None, digits: int = 2, percent: bool = False) -> str:
-    """``mean ± half`` (95% CI), ``mean (n=1)``, or the not-run marker."""
+def fmt(
+    estimate: Estimate | None, digits: int = 2, percent: bool = False, unit: str | None = None
+) -> str:
+    """``mean ± half`` (95% CI), ``mean (n=1)``, or the not-run marker; ``unit`` follows
+    the number (``%`` where ``percent`` unless given)."""
     if estimate is None or estimate.n == 0 or not np.isfinite(estimate.mean):
         return "–"
-    scale, unit = (100.0, "%") if percent else (1.0, "")
+    scale = 100.0 if percent else 1.0
+    unit = ("%" if percent else "") if unit is None else unit
     mean = f"{estimate.mean * scale:.{digits}f}"
     if estimate.half_width is None:
         return f"{mean}{unit} (n=1)"
@@ -188,11 +192,8 @@ def claims_block(claims: list[Claim]) -> str:
     rows = []
     for c in claims:
         percent = c.unit in ("pp", "%")
-        ours = fmt(c.ours, 1 if percent or c.unit == " steps" else 2, percent=percent)
-        if c.unit == "pp":
-            ours = ours.replace("%", " pp")
-        elif not percent and c.ours:
-            ours = ours.replace(" (n=1)", f"{c.unit} (n=1)") if " (n=1)" in ours else ours + c.unit
+        digits = 1 if percent or c.unit == " steps" else 2
+        ours = fmt(c.ours, digits, percent=percent, unit=" pp" if c.unit == "pp" else c.unit)
         measure = f"{c.measure} ({c.note})" if c.note else c.measure
         rows.append([c.figure, c.claim, c.paper, measure, ours, c.verdict])
     header = ["Fig.", "claim", "paper", "our measure (paired over seeds)", "ours: mean ± 95% CI",
@@ -358,6 +359,12 @@ TESTED_METRIC_LABELS = {
 }
 
 
+def _fmt_tested(metric: str, estimate: Estimate | None) -> str:
+    """A tested-curve metric: the return to two digits, the rates in percent to one."""
+    rate = metric != "average_reward"
+    return fmt(estimate, 1 if rate else 2, percent=rate)
+
+
 def fig4_tested_block(
     curves: dict[str, TestedCurve],
     settings: CurveSettings,
@@ -386,11 +393,9 @@ def fig4_tested_block(
             f"The step from which the tested return holds {threshold}: {holds}.\n\n"
         )
         rows = [
-            [TESTED_METRIC_LABELS[metric], *(fmt(e, 1 if metric != "average_reward" else 2,
-                                                 percent=metric != "average_reward")
-                                             for e in estimates)]
+            [TESTED_METRIC_LABELS[metric], *(_fmt_tested(metric, e) for e in estimates)]
             for metric, estimates in c.metrics.items()
-        ]  # fmt: skip
+        ]
         text += table(["step", *(f"{step:,}" for step in c.steps)], rows) + "\n\n"
     episodes = {c.episodes_per_task for c in curves.values()}
     per_task = f"{episodes.pop()} episodes" if len(episodes) == 1 else "a few episodes"
@@ -404,8 +409,8 @@ def fig4_tested_block(
     )
     parts = [
         f"{name.replace('_', ' ')} "
-        + " / ".join(fmt(summary.metrics.get("average", {}).get(metric), 2 if i == 0 else 1,
-                         percent=i > 0) for i, metric in enumerate(TESTED_CURVE_METRICS))
+        + " / ".join(_fmt_tested(metric, summary.metrics.get("average", {}).get(metric))
+                     for metric in TESTED_CURVE_METRICS)
         for name, summary in (yardsticks or {}).items()
     ]  # fmt: skip
     if parts:
