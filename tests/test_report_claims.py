@@ -53,6 +53,16 @@ def test_the_claims_table_puts_each_unit_before_a_lone_seeds_marker():
     assert "| m2 | 50.0% (n=1) |" in text and "| m3 | – |" in text
 
 
+def test_a_step_count_prints_as_whole_steps_with_thousands_separated():
+    rows = [
+        Claim("4", "c", "p", "held", Estimate(10000.0, None, 1), +1, " steps", digits=0),
+        Claim("4", "c", "p", "reached", Estimate(4593.4, 812.6, 3), +1, " steps", digits=0),
+    ]
+    text = claims_block(rows)
+    assert "| held | 10,000 steps (n=1) |" in text
+    assert "| reached | 4,593 ± 813 steps |" in text
+
+
 def test_differences_are_paired_over_the_seeds_both_hold():
     difference = paired({0: 1.0, 1: 3.0, 2: 5.0}, {0: 0.0, 1: 1.0, 2: 2.0, 3: 9.0})
     assert difference is not None
@@ -204,7 +214,7 @@ def test_the_guided_agent_is_a_panel_of_its_own_never_mixed_in(root, tmp_path):
     assert hint not in text
     guided = _block(text, "claims-guided")
     assert "| 4 | FedAvg-DDPG's tested return holds 6 | step 4,593 (training reward) |" in guided
-    assert "| 20.0 ± 0.0 steps | held at 2 of 2 seeds |" in guided
+    assert "| 20 ± 0 steps | held at 2 of 2 seeds |" in guided
     assert "| 50.0 ± 0.0% |" in guided  # Sep-DDPG: 30 steps against 20, at both seeds
     assert "fedavg-seed1" in _block(text, "runs-guided")
     assert "guided" not in _block(text, "runs")

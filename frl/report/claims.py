@@ -57,6 +57,8 @@ class Claim:
     note: str = ""
     settled: str | None = None
     """A verdict that is no comparison (a threshold reached at k of n seeds)."""
+    digits: int | None = None
+    """Decimals shown; None: one for rates, ratios and steps, two otherwise."""
 
     @property
     def verdict(self) -> str:
@@ -160,7 +162,7 @@ def hold_claims(
               f"first step from which the {name} stays at or above {threshold}, "
               "over the seeds that hold it",
               mean_ci(list(fed_steps.values())) if fed_steps else None, +1, unit=" steps",
-              settled=held("fedavg")),
+              settled=held("fedavg"), digits=0),
     ]  # fmt: skip
     for other, speed in PAPER_SPEED_UPS:
         label = SCHEME_LABELS[other]
@@ -207,6 +209,7 @@ def fig4_fig5_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Cla
             +1,
             unit=" steps",
             settled=(f"reached at {len(crossed)} of {seeds} seeds" if seeds else "not run"),
+            digits=0,
         )
     )
     for other, speed in PAPER_SPEED_UPS:

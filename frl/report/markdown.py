@@ -149,10 +149,10 @@ def fmt(
         return "–"
     scale = 100.0 if percent else 1.0
     unit = ("%" if percent else "") if unit is None else unit
-    mean = f"{estimate.mean * scale:.{digits}f}"
+    mean = f"{estimate.mean * scale:,.{digits}f}"
     if estimate.half_width is None:
         return f"{mean}{unit} (n=1)"
-    return f"{mean} ± {estimate.half_width * scale:.{digits}f}{unit}"
+    return f"{mean} ± {estimate.half_width * scale:,.{digits}f}{unit}"
 
 
 def table(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:
@@ -192,7 +192,9 @@ def claims_block(claims: list[Claim]) -> str:
     rows = []
     for c in claims:
         percent = c.unit in ("pp", "%")
-        digits = 1 if percent or c.unit == " steps" else 2
+        digits = c.digits
+        if digits is None:
+            digits = 1 if percent or c.unit == " steps" else 2
         ours = fmt(c.ours, digits, percent=percent, unit=" pp" if c.unit == "pp" else c.unit)
         measure = f"{c.measure} ({c.note})" if c.note else c.measure
         rows.append([c.figure, c.claim, c.paper, measure, ours, c.verdict])
