@@ -4,6 +4,7 @@
     python -m frl.evaluate --policy oracle --task all         # a yardstick on the default traffic
     python -m frl.evaluate --policy all --traffic dense --seed 1
     python -m frl.evaluate RUN_DIR --policy gap_acceptance    # a yardstick on a run's seeds
+    python -m frl.evaluate RUN_DIR --round-tests              # its yardsticks on its curve's seeds
 
 Runs automatically at the end of ``python -m frl.train``. Each task is tested with the
 model the scheme deploys for it (``models/index.json``): FedAvg-DDPG's one global model,
@@ -22,7 +23,7 @@ import dataclasses
 import functools
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +43,7 @@ from frl.episodes import (
     run_episodes,
     summarize,
 )
-from frl.federation.plan import evaluation_seeds
+from frl.federation.plan import evaluation_seeds, round_test_seeds
 from frl.federation.workers import WorkerPool, available_cores
 from frl.policies import YARDSTICK_LABELS, YARDSTICKS, install_guide, make_yardstick
 
@@ -116,16 +117,22 @@ def evaluate_policies(
     policies: Sequence[str],
     model_files: dict[str, str | list[str]] | None = None,
     progress: bool = False,
+    seeds: Mapping[str, Sequence[int]] | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Test each policy on each task's test seeds; ``{policy: {task: summary}}``.
 
     ``settings`` is a :class:`frl.train_config.TrainSettings`. ``model_files`` maps each
     task to its saved model, or models (needed when ``policies`` holds :data:`MODEL`);
     several models of a task each drive every seed and their episodes are pooled.
-    Yardsticks come from the cache when they ran on the same environment, reward and
-    seeds before.
+    ``seeds`` maps each task to the SUMO seeds to drive (``episodes`` of them); the
+    default is the final test's. Yardsticks come from the cache when they ran on the
+    same environment, reward and seeds before.
     """
-    seeds = {task: evaluation_seeds(settings.seed, task, episodes) for task in tasks}
+    if seeds is None:
+        seeds = {task: evaluation_seeds(settings.seed, task, episodes) for task in tasks}
+    elif any(len(seeds[task]) != episodes for task in tasks):
+        raise ValueError(f"every task needs {episodes} seeds")
+    seeds = {task: [int(seed) for seed in seeds[task]] for task in tasks}
     results: dict[str, dict[str, dict[str, Any]]] = {name: {} for name in policies}
     keys: dict[tuple[str, str], str] = {}
     for name in policies:
@@ -417,6 +424,52 @@ def evaluate_yardsticks(
     return tables
 
 
+def evaluate_round_test_yardsticks(
+    run_dir: str | os.PathLike[str],
+    names: Sequence[str] | None = None,
+    progress: bool = False,
+    verbose: bool = True,
+) -> dict[str, dict[str, Any]]:
+    """Test yardsticks on the seeds of the run's per-round test curve; ``{name: table}``.
+
+    The curve's model and these yardsticks then meet the same traffic, so each round's
+    tested return can be paired with the gap-acceptance rule's seed by seed, as the final
+    test is. ``names`` defaults to the run's ``yardsticks``. The tables join the run's
+    ``results.json`` under ``round_tests.yardsticks``; ``frl.train`` calls this for every
+    run made with ``round_test_episodes``.
+
+    Raises:
+        ValueError: the run has no per-round test curve, or a name is no yardstick.
+    """
+    run_dir = Path(run_dir)
+    settings = run_settings(run_dir)
+    names = list(settings.yardsticks if names is None else names)
+    unknown = [name for name in names if name not in YARDSTICKS]
+    if unknown:
+        raise ValueError(f"unknown policy {unknown[0]!r}; choose one of {', '.join(YARDSTICKS)}")
+    results = rundir.read_results(run_dir) or {}
+    curve = results.get("round_tests") or {}
+    if not curve.get("points"):
+        raise ValueError(
+            f"{run_dir} has no per-round test curve: it was trained without round_test_episodes"
+        )
+    episodes = int(curve["episodes_per_task"])
+    tasks = list(curve["points"][0]["per_task"])
+    seeds = {
+        task: round_test_seeds(settings.seed, task, episodes, settings.eval_episodes)
+        for task in tasks
+    }
+    tested = evaluate_policies(settings, tasks, episodes, names, progress=progress, seeds=seeds)
+    tables = {name: _table(per_task) for name, per_task in tested.items()}
+    curve.setdefault("yardsticks", {}).update(tables)
+    rundir.write_results(run_dir, results)
+    if verbose:
+        print(f"the per-round test seeds of {run_dir}: {episodes} episodes per task")
+        for name, table in tables.items():
+            print(_format_rows(_label(name), table))
+    return tables
+
+
 def default_settings(traffic: str, seed: int) -> Any:
     """The default training config on the ``traffic`` preset and ``seed``, validated."""
     from frl.train_config import validate
@@ -513,6 +566,12 @@ def main(argv: list[str] | None = None) -> int:
         help="with --policy and no RUN_DIR: the run seed whose test seeds to use (0)",
     )
     parser.add_argument("--episodes", type=int, default=None, help="test episodes per task")
+    parser.add_argument(
+        "--round-tests",
+        action="store_true",
+        help="test the yardsticks (the run's, or --policy) on the seeds of RUN_DIR's "
+        "per-round test curve, and add them to its results.json",
+    )
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument(
         "--no-tensorboard", action="store_true", help="do not log eval/* to the run's tb/"
@@ -520,6 +579,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes is not None and args.episodes <= 0:
         parser.error("--episodes must be positive")
+    if args.round_tests:
+        if args.run_dir is None:
+            parser.error("--round-tests needs a RUN_DIR made with round_test_episodes")
+        if args.episodes is not None or args.traffic is not None or args.seed is not None:
+            parser.error("--round-tests takes its episodes, traffic and seeds from the run")
+        if args.task != "all":
+            parser.error("--round-tests tests every task of the run's curve")
     if args.policy is None:
         if args.run_dir is None:
             parser.error("give a RUN_DIR to test its model, or --policy NAME")
@@ -538,7 +604,13 @@ def main(argv: list[str] | None = None) -> int:
                 f"unknown traffic {args.traffic!r}; choose one of {', '.join(TRAFFIC_PRESETS)}"
             )
     try:
-        if args.policy is None:
+        if args.round_tests:
+            evaluate_round_test_yardsticks(
+                args.run_dir,
+                names=None if args.policy is None else names,
+                progress=not args.no_progress,
+            )
+        elif args.policy is None:
             evaluate_run(
                 args.run_dir,
                 episodes=args.episodes,
@@ -562,4 +634,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # The test workers unpickle PolicyEvaluator by its module's name, which under
+    # ``python -m`` is __main__: run the importable module's main so they find it.
+    from frl.evaluate import main as importable_main
+
+    sys.exit(importable_main())

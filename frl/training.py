@@ -123,6 +123,15 @@ def train(
         began = time.perf_counter()
         results["evaluation"] = evaluate_run(run_dir, progress=progress, verbose=True)
         results["evaluation_wall_time_s"] = time.perf_counter() - began
+    if results["round_tests"] is not None and settings.yardsticks:
+        from frl.evaluate import evaluate_round_test_yardsticks
+
+        # The curve's reference, on its own seeds: each round pairs with the rule.
+        began = time.perf_counter()
+        results["round_tests"]["yardsticks"] = evaluate_round_test_yardsticks(
+            run_dir, progress=progress, verbose=False
+        )
+        results["round_tests"]["yardsticks_wall_time_s"] = time.perf_counter() - began
     results["job_wall_time_s"] = time.perf_counter() - job_started
     rundir.write_results(run_dir, results)
     _log_hparams(run_dir, settings, results)

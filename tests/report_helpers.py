@@ -37,9 +37,11 @@ def make_run(
     wall_time_s: float = 60.0,
     learning_starts: int = 0,
     round_tests: list[tuple[float, ...]] | None = None,
+    round_test_yardsticks: dict[str, tuple[float, float, float]] | None = None,
 ) -> Path:
     """A finished run. ``episodes``: per client, (end step, return) pairs; ``round_tests``:
-    the per-round test curve's (step, mean test return[, collisions, arrivals]) points."""
+    the per-round test curve's (step, mean test return[, collisions, arrivals]) points;
+    ``round_test_yardsticks``: each yardstick's (return, collisions, arrivals) on them."""
     clients = (
         ["client0_random"]
         if scheme == "central"
@@ -97,6 +99,11 @@ def make_run(
             for point in round_tests
         ]
         results["round_tests"] = {"episodes_per_task": 20, "points": points}
+        if round_test_yardsticks is not None:
+            results["round_tests"]["yardsticks"] = {
+                name: {"per_task": {}, "average": dict(zip(names, values, strict=True))}
+                for name, values in round_test_yardsticks.items()
+            }
     write_json_atomic(run_dir / "results.json", results)
     return run_dir
 

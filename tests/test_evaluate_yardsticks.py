@@ -1,7 +1,10 @@
 """Yardsticks from one command, cached, beside the model; the traffic setting in configs."""
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -12,13 +15,15 @@ from train_helpers import compose_config
 from frl import evaluate
 from frl.envs import EnvConfig, IntersectionEnv, traffic_preset
 from frl.episodes import run_episodes, summarize
-from frl.federation.plan import evaluation_seeds
+from frl.federation.plan import evaluation_seeds, round_test_seeds
 from frl.policies import full_throttle
 from frl.train_config import ConfigError, load_run_config, migrate_saved_config, validate
 from frl.yardsticks import cache_dir
 
 REPO = Path(__file__).resolve().parents[1]
 OLD_RUN = REPO / "docs" / "results" / "data" / "edition1" / "fig4" / "fedavg-seed0"
+CURVE_RUN = REPO / "docs" / "results" / "data" / "fig4" / "fedavg-seed0"
+"""A run made with the per-round test curve (20 episodes per task)."""
 
 
 def test_unknown_policy_fails_with_the_valid_names(capsys):
@@ -39,6 +44,9 @@ def test_unknown_policy_fails_with_the_valid_names(capsys):
         ([], "give a RUN_DIR"),
         (["some/run", "--traffic", "dense"], "go with --policy"),
         (["--policy", "oracle", "--episodes", "0"], "--episodes must be positive"),
+        (["--round-tests"], "--round-tests needs a RUN_DIR"),
+        (["some/run", "--round-tests", "--episodes", "3"], "takes its episodes, traffic and seeds"),
+        (["some/run", "--round-tests", "--task", "left"], "tests every task of the run's curve"),
     ],
 )
 def test_bad_arguments_fail_before_any_episode(argv, message, capsys):
@@ -120,3 +128,51 @@ def test_runs_saved_before_the_presets_load_as_they_ran(tmp_path):
     (tmp_path / "config.yaml").write_text("- not\n- a mapping\n")
     with pytest.raises(ConfigError, match="not an frl run config"):
         load_run_config(tmp_path)
+
+
+def test_yardsticks_join_a_runs_curve_on_the_curves_own_seeds(tmp_path, capsys):
+    run_dir = tmp_path / "curve-run"
+    shutil.copytree(CURVE_RUN, run_dir)
+    results = json.loads((run_dir / "results.json").read_text())
+    results["round_tests"]["episodes_per_task"] = 2  # keep the test short
+    results["round_tests"].pop("yardsticks", None)
+    (run_dir / "results.json").write_text(json.dumps(results))
+
+    argv = [str(run_dir), "--round-tests", "--policy", "full_throttle", "--no-progress"]
+    assert evaluate.main(argv) == 0
+    assert "per-round test seeds" in capsys.readouterr().out
+
+    saved = json.loads((run_dir / "results.json").read_text())
+    table = saved["round_tests"]["yardsticks"]["full_throttle"]
+    settings = validate(load_run_config(run_dir))
+    env = IntersectionEnv(settings.eval_env("left"), settings.reward)
+    try:  # the curve's seeds driven directly: the first two of each task's 20
+        for task in ("left", "straight", "right"):
+            seeds = round_test_seeds(0, task, 2, settings.eval_episodes)
+            assert seeds == round_test_seeds(0, task, 20, 100)[:2]
+            direct = summarize(run_episodes(env, full_throttle(), task, seeds))
+            assert table["per_task"][task] == json.loads(json.dumps(direct))
+    finally:
+        env.close()
+    assert saved["round_tests"]["points"] == results["round_tests"]["points"]  # untouched
+    assert saved["evaluation"] == results["evaluation"]
+
+
+def test_a_run_without_a_curve_is_refused_and_left_as_it_was(tmp_path, capsys):
+    run_dir = tmp_path / "old-run"
+    shutil.copytree(OLD_RUN, run_dir)
+    before = (run_dir / "results.json").read_bytes()
+
+    assert evaluate.main([str(run_dir), "--round-tests", "--no-progress"]) == 2
+    assert "has no per-round test curve" in capsys.readouterr().err
+    assert (run_dir / "results.json").read_bytes() == before
+
+
+def test_the_module_runs_its_test_workers_from_the_command_line(tmp_path):
+    # Under `python -m` the module is __main__, whose classes the workers cannot unpickle.
+    command = [sys.executable, "-m", "frl.evaluate", "--policy", "full_throttle", "--task",
+               "left", "--episodes", "1", "--no-progress"]  # fmt: skip
+    env = {**os.environ, "FRL_CACHE_DIR": str(tmp_path)}  # nothing cached: workers start
+    done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "full throttle" in done.stdout

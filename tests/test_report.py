@@ -198,6 +198,45 @@ def test_the_tested_curve_is_tabulated_per_round_over_the_seeds_each_run_has(tmp
     assert "**Central-DDPG**: not run yet." in text
 
 
+def test_the_tested_curve_pairs_each_round_with_the_rule_on_the_same_episodes(tmp_path):
+    # (step, return, collisions, arrivals); the rule's (return, collisions, arrivals) on
+    # each seed's own round-test episodes.
+    curves = {
+        0: [(10, 5.0, 0.2, 0.8), (20, 5.6, 0.1, 0.9)],
+        1: [(10, 6.2, 0.0, 1.0), (20, 6.0, 0.05, 0.95)],
+    }
+    rule = {0: (6.0, 0.05, 0.95), 1: (6.4, 0.0, 1.0)}
+    for seed, curve in curves.items():
+        make_run(tmp_path / "fig4" / f"fedavg-seed{seed}", "fedavg", seed, round_tests=curve,
+                 round_test_yardsticks={"gap_acceptance": rule[seed],
+                                        "oracle": (6.7, 0.0, 1.0)})  # fmt: skip
+
+    fed = aggregate.tested_curves(collect(tmp_path), SETTINGS)["fedavg"]
+    build_report(tmp_path, tmp_path / "r.md", settings=SETTINGS)
+
+    gaps = fed.against_rule
+    # Returns: seed 0 -1.0 then -0.4, seed 1 -0.2 then -0.4.
+    assert [e.mean for e in gaps["average_reward"]] == pytest.approx([-0.6, -0.4])
+    assert gaps["average_reward"][0].half_width == pytest.approx(12.7062 * 0.4, rel=1e-4)
+    assert gaps["average_reward"][1].half_width == pytest.approx(0.0, abs=1e-12)
+    assert [e.mean for e in gaps["collision_rate"]] == pytest.approx([0.075, 0.05])
+    text = (tmp_path / "r.md").read_text()
+    assert "| tested return - gap acceptance | -0.60 ± 5.08 | -0.40 ± 0.00 |" in text
+    assert "| collisions - gap acceptance | 7.5 ± 95.3 pp | 5.0 ± 0.0 pp |" in text
+    assert "the yardsticks on the round tests' own seeds" in text
+    assert "gap acceptance 6.20 ± 2.54 / 2.5 ± 31.8% / 97.5 ± 31.8%" in text
+
+    # One run without the rule on its curve's seeds: no pairing, and the lines fall back
+    # to the final test's yardsticks.
+    results = json.loads((tmp_path / "fig4" / "fedavg-seed1" / "results.json").read_text())
+    del results["round_tests"]["yardsticks"]
+    write_json_atomic(tmp_path / "fig4" / "fedavg-seed1" / "results.json", results)
+    assert aggregate.tested_curves(collect(tmp_path), SETTINGS)["fedavg"].against_rule is None
+    assert aggregate.tested_curve_yardsticks(collect(tmp_path)) == {}
+    build_report(tmp_path, tmp_path / "r.md", settings=SETTINGS)
+    assert "- gap acceptance |" not in (tmp_path / "r.md").read_text()
+
+
 def test_fig6_borrows_the_fig4_interval_and_fig3_the_paper_reward(root):
     collection = collect(root)
 

@@ -13,8 +13,8 @@ from train_helpers import TINY_AGENT, TINY_ENV, compose_config
 import frl.federation.plan as plan_module
 from frl.agents import DDPG
 from frl.agents.checkpoint import read_checkpoint
-from frl.envs import RewardConfig
-from frl.episodes import run_episodes
+from frl.envs import IntersectionEnv, RewardConfig
+from frl.episodes import run_episodes, summarize
 from frl.federation.plan import evaluation_seeds, round_test_seeds
 from frl.federation.round_tests import TaskTester, actor_state
 from frl.policies import make_yardstick
@@ -91,6 +91,18 @@ def test_round_tests_draw_a_curve_and_leave_training_as_it_was(tmp_path):
     last = tags["eval/round/average/collision_rate"][-1].value
     assert last == pytest.approx(curve["points"][-1]["average"]["collision_rate"])
     assert not any(tag.startswith("eval/round") for tag in _tags(tmp_path / "plain"))
+
+    # The yardsticks on the curve's own seeds: each round pairs with the rule.
+    assert set(curve["yardsticks"]) == {"full_throttle", "gap_acceptance", "oracle"}
+    assert curve["yardsticks_wall_time_s"] > 0
+    settings = validate(compose_config(tmp_path / "tested", overrides))
+    env = IntersectionEnv(settings.eval_env("right"), settings.reward)
+    try:
+        seeds = round_test_seeds(0, "right", 2, 0)
+        direct = summarize(run_episodes(env, make_yardstick("gap_acceptance", env), "right", seeds))
+    finally:
+        env.close()
+    assert curve["yardsticks"]["gap_acceptance"]["per_task"]["right"] == direct
 
 
 @pytest.mark.parametrize("bias, yardstick", [(20.0, "full_throttle"), (-20.0, "always_brake")])

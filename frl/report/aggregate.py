@@ -170,6 +170,14 @@ class TestedCurve:
     holds: list[int | None]
     """Per seed: the first step from which the tested return holds the threshold."""
     episodes_per_task: int | None
+    against_rule: dict[str, list[Estimate]] | None = None
+    """Per metric, one estimate a step of the model's value minus the gap-acceptance
+    rule's on the same round-test episodes, paired seed by seed; None unless every run
+    has the rule tested on its curve's seeds."""
+
+
+RULE = "gap_acceptance"
+"""The yardstick a learned driver is paired against: the memoryless rule on the grid."""
 
 
 def tested_curve(runs: list[RunRecord], settings: CurveSettings) -> TestedCurve:
@@ -183,6 +191,17 @@ def tested_curve(runs: list[RunRecord], settings: CurveSettings) -> TestedCurve:
         metric: [mean_ci([table[metric][step] for table in by_run]) for step in steps]
         for metric in TESTED_CURVE_METRICS
     }
+    rule = [(r.round_test_yardsticks.get(RULE) or {}).get("average") for r in runs]
+    against_rule = None
+    if all(rule):
+        against_rule = {
+            metric: [
+                mean_ci([table[metric][step] - row[metric]  # type: ignore[index]
+                         for table, row in zip(by_run, rule, strict=True)])
+                for step in steps
+            ]
+            for metric in TESTED_CURVE_METRICS
+        }  # fmt: skip
     returns = [table["average_reward"] for table in by_run]  # one per seed, in step order
     holds = [first_hold(list(r), list(r.values()), settings.threshold) for r in returns]
     episodes = {r.round_test_episodes for r in runs}
@@ -193,6 +212,7 @@ def tested_curve(runs: list[RunRecord], settings: CurveSettings) -> TestedCurve:
         metrics=metrics,
         holds=holds,
         episodes_per_task=episodes.pop() if len(episodes) == 1 else None,
+        against_rule=against_rule,
     )
 
 
@@ -251,8 +271,9 @@ def fig5(collection: Collection) -> dict[str, EvalSummary]:
     return {s: v for s, v in summaries.items() if v is not None}
 
 
-def yardsticks_of(runs: list[RunRecord]) -> dict[str, EvalSummary]:
-    """The yardsticks ``runs`` were tested beside, over their distinct seeds.
+def yardsticks_of(runs: list[RunRecord], on_round_tests: bool = False) -> dict[str, EvalSummary]:
+    """The yardsticks ``runs`` were tested beside, over their distinct seeds: on the
+    final test's seeds, or with ``on_round_tests`` on the per-round test curve's.
 
     Runs of one seed and one reward carry the same tables, so each seed counts once.
     Give runs of one reward only: its weights score the yardsticks, and the oracle picks
@@ -260,9 +281,23 @@ def yardsticks_of(runs: list[RunRecord]) -> dict[str, EvalSummary]:
     """
     tables: dict[str, dict[int, dict[str, Any]]] = {}
     for run in sorted(runs, key=lambda r: (r.seed, r.scheme)):
-        for name, table in ((run.evaluation or {}).get("yardsticks") or {}).items():
+        tested = (
+            run.round_test_yardsticks
+            if on_round_tests
+            else (run.evaluation or {}).get("yardsticks") or {}
+        )
+        for name, table in tested.items():
             tables.setdefault(name, {}).setdefault(run.seed, table)
     return {name: _summary(by_seed) for name, by_seed in tables.items()}
+
+
+def tested_curve_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
+    """The yardsticks on the per-round test curve's own seeds, over the seeds of the
+    ``fig4/`` runs with the curve; empty unless every such run has them."""
+    tested = [r for r in collection.of("fig4") if r.round_test_curve is not None]
+    if not tested or not all(r.round_test_yardsticks for r in tested):
+        return {}
+    return yardsticks_of(tested, on_round_tests=True)
 
 
 def fig5_yardsticks(collection: Collection) -> dict[str, EvalSummary]:

@@ -138,17 +138,22 @@ def _fig4_fig5_blocks(
     tested = aggregate.tested_curves(collection, settings)
     summaries = aggregate.fig5(collection)
     yardsticks = aggregate.fig5_yardsticks(collection)
+    on_curve_seeds = aggregate.tested_curve_yardsticks(collection)
+    curve_references = on_curve_seeds or yardsticks
     return {
         f"fig4-tested{suffix}": markdown.fig4_tested_block(
             tested,
             settings,
             image(
                 f"fig4-tested{suffix}",
-                lambda p: plots.plot_fig4_tested(tested, settings, p, yardsticks),
+                lambda p: plots.plot_fig4_tested(
+                    tested, settings, p, curve_references, bool(on_curve_seeds)
+                ),
             )
             if tested
             else None,
-            yardsticks,
+            curve_references,
+            bool(on_curve_seeds),
         ),
         f"fig4{suffix}": markdown.fig4_block(
             curves,

@@ -367,13 +367,24 @@ def _fmt_tested(metric: str, estimate: Estimate | None) -> str:
     return fmt(estimate, 1 if rate else 2, percent=rate)
 
 
+RULE_GAP_ROWS = {
+    "average_reward": ("tested return - gap acceptance", None),
+    "collision_rate": ("collisions - gap acceptance", " pp"),
+}
+"""The rows that pair each round's test with the rule on the same episodes."""
+
+
 def fig4_tested_block(
     curves: dict[str, TestedCurve],
     settings: CurveSettings,
     image: str | None,
     yardsticks: dict[str, EvalSummary] | None = None,
+    on_curve_seeds: bool = False,
 ) -> str:
-    """Fig. 4 without exploration noise: each scheme's deployed model tested every round."""
+    """Fig. 4 without exploration noise: each scheme's deployed model tested every round.
+
+    ``yardsticks`` are the reference lines: on the curve's own seeds where
+    ``on_curve_seeds``, else on the final test's."""
     if not curves:
         return (
             f"_{NOT_RUN}_ (needs `fig4/` runs made with the per-round test curve: "
@@ -398,6 +409,10 @@ def fig4_tested_block(
             [TESTED_METRIC_LABELS[metric], *(_fmt_tested(metric, e) for e in estimates)]
             for metric, estimates in c.metrics.items()
         ]
+        for metric, (label, unit) in RULE_GAP_ROWS.items() if c.against_rule else ():
+            rate = metric != "average_reward"
+            gaps = c.against_rule[metric]  # type: ignore[index]
+            rows.append([label, *(fmt(e, 1 if rate else 2, percent=rate, unit=unit) for e in gaps)])
         text += table(["step", *(f"{step:,}" for step in c.steps)], rows) + "\n\n"
     episodes = {c.episodes_per_task for c in curves.values()}
     per_task = f"{episodes.pop()} episodes" if len(episodes) == 1 else "a few episodes"
@@ -415,7 +430,15 @@ def fig4_tested_block(
                      for metric in TESTED_CURVE_METRICS)
         for name, summary in (yardsticks or {}).items()
     ]  # fmt: skip
-    if parts:
+    if parts and on_curve_seeds:
+        text += (
+            "\n\nReference lines: the yardsticks on the round tests' own seeds (return / "
+            f'collisions / arrivals): {", ".join(parts)}. The rows "- gap acceptance" '
+            "pair each seed's model with the rule on the same episodes, round by round "
+            "(`python -m frl.evaluate RUN_DIR --round-tests` adds the rule to a run made "
+            "before it was tested there)."
+        )
+    elif parts:
         text += (
             "\n\nReference lines: the yardsticks on the final test's seeds (return / "
             f"collisions / arrivals): {', '.join(parts)}. The round tests drive other "

@@ -56,13 +56,15 @@ def _val(estimate: Estimate | None) -> float:
     return estimate.mean if estimate else np.nan
 
 
-def _yardstick_lines(axis, yardsticks: dict[str, EvalSummary] | None, metric: str) -> None:  # type: ignore[no-untyped-def]
+def _yardstick_lines(  # type: ignore[no-untyped-def]
+    axis, yardsticks: dict[str, EvalSummary] | None, metric: str, where: str = "tested"
+) -> None:
     """Each yardstick's test average over tasks and seeds as a horizontal line."""
     for name, summary in (yardsticks or {}).items():
         value = _val(summary.metrics.get("average", {}).get(metric))
         if np.isfinite(value):
             style = YARDSTICK_STYLES.get(name, {"color": "black", "linestyle": ":"})
-            label = f"{name.replace('_', ' ')}, tested (n={len(summary.seeds)})"
+            label = f"{name.replace('_', ' ')}, {where} (n={len(summary.seeds)})"
             axis.axhline(value, linewidth=1.2, label=label, **style)
 
 
@@ -110,9 +112,11 @@ def plot_fig4_tested(
     settings: CurveSettings,
     path: Path,
     yardsticks: dict[str, EvalSummary] | None = None,
+    on_curve_seeds: bool = False,
 ) -> Path:
     """The per-round test curve per scheme: tested return, collisions and arrivals, mean
-    and 95% band over seeds; each yardstick's final test as a reference line."""
+    and 95% band over seeds; each yardstick as a reference line, tested on the curve's
+    own seeds where ``on_curve_seeds``, else on the final test's."""
     plt = _pyplot()
     titles = ("tested return", "collision rate", "arrival rate")
     figure, axes = plt.subplots(1, 3, figsize=(15, 4))
@@ -123,7 +127,8 @@ def plot_fig4_tested(
             label = f"{SCHEME_LABELS[scheme]} (n={len(c.seeds)})"
             axis.plot(c.steps, mean, marker="o", color=COLORS[scheme], label=label, linewidth=1.2)
             axis.fill_between(c.steps, mean - half, mean + half, color=COLORS[scheme], alpha=0.2)
-        _yardstick_lines(axis, yardsticks, metric)
+        where = "same episodes" if on_curve_seeds else "final test"
+        _yardstick_lines(axis, yardsticks, metric, where)
         axis.set(xlabel="training step (per agent)", ylabel=title, title=f"{title}, every round")
         axis.grid(alpha=0.3)
     axes[0].axhline(settings.threshold, color="gray", linestyle="--", linewidth=0.8)

@@ -116,6 +116,12 @@ class RunRecord:
         return [int(p["step"]) for p in points], [math.nan if v is None else v for v in values]
 
     @property
+    def round_test_yardsticks(self) -> dict[str, dict[str, Any]]:
+        """The yardsticks tested on the per-round test curve's own seeds, ``{name:
+        {"per_task", "average"}}``; empty for a run without them."""
+        return (self.results.get("round_tests") or {}).get("yardsticks") or {}
+
+    @property
     def round_test_episodes(self) -> int | None:
         """Episodes per task of each per-round test; None for a run without the curve."""
         return (self.results.get("round_tests") or {}).get("episodes_per_task")
