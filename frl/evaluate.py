@@ -373,6 +373,12 @@ def evaluate_run(
     return evaluation
 
 
+def _check_yardsticks(names: Sequence[str]) -> None:
+    unknown = [name for name in names if name not in YARDSTICKS]
+    if unknown:
+        raise ValueError(f"unknown policy {unknown[0]!r}; choose one of {', '.join(YARDSTICKS)}")
+
+
 def evaluate_yardsticks(
     names: Sequence[str],
     tasks: Sequence[str],
@@ -388,9 +394,7 @@ def evaluate_yardsticks(
     tables join the run's ``results.json`` when they match its evaluation's episodes.
     Without, the default config with the ``traffic`` preset and ``seed`` decides.
     """
-    unknown = [name for name in names if name not in YARDSTICKS]
-    if unknown:
-        raise ValueError(f"unknown policy {unknown[0]!r}; choose one of {', '.join(YARDSTICKS)}")
+    _check_yardsticks(names)
     if run_dir is not None:
         if traffic is not None or seed is not None:
             raise ValueError(
@@ -444,9 +448,7 @@ def evaluate_round_test_yardsticks(
     run_dir = Path(run_dir)
     settings = run_settings(run_dir)
     names = list(settings.yardsticks if names is None else names)
-    unknown = [name for name in names if name not in YARDSTICKS]
-    if unknown:
-        raise ValueError(f"unknown policy {unknown[0]!r}; choose one of {', '.join(YARDSTICKS)}")
+    _check_yardsticks(names)
     results = rundir.read_results(run_dir) or {}
     curve = results.get("round_tests") or {}
     if not curve.get("points"):

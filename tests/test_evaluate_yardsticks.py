@@ -176,3 +176,9 @@ def test_the_module_runs_its_test_workers_from_the_command_line(tmp_path):
     done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "full throttle" in done.stdout
+
+
+def test_seeds_that_do_not_match_the_episode_count_are_refused_before_any_episode():
+    settings = evaluate.default_settings("paper", 0)
+    with pytest.raises(ValueError, match="every task needs 3 seeds"):
+        evaluate.evaluate_policies(settings, ["left"], 3, ["full_throttle"], seeds={"left": [1, 3]})

@@ -18,6 +18,7 @@ import numpy as np
 from frl.report.aggregate import (
     PAPER_INTERVAL,
     PAPER_REWARD_KEY,
+    RULE,
     SCHEME_LABELS,
     CurveSettings,
     fig3_runs,
@@ -268,7 +269,7 @@ def fig4_fig5_claims(runs: list[RunRecord], settings: CurveSettings) -> list[Cla
               "pp"),
     ]  # fmt: skip
     rule = {
-        name: of("fedavg", yardstick_metric("gap_acceptance", name))
+        name: of("fedavg", yardstick_metric(RULE, name))
         for name in ("average_reward", "collision_rate", "arrival_rate")
     }
     if any(rule.values()):  # runs tested beside the gap-acceptance driver
