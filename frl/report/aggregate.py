@@ -216,10 +216,14 @@ def tested_curve(runs: list[RunRecord], settings: CurveSettings) -> TestedCurve:
     )
 
 
+def _runs_with_tested_curve(collection: Collection) -> list[RunRecord]:
+    """The ``fig4/`` runs made with the per-round test curve."""
+    return [r for r in collection.of("fig4") if r.round_test_curve is not None]
+
+
 def tested_curves(collection: Collection, settings: CurveSettings) -> dict[str, TestedCurve]:
     """Per scheme present in ``fig4/`` with the per-round test curve."""
-    tested = [r for r in collection.of("fig4") if r.round_test_curve is not None]
-    by_scheme = group(tested, lambda r: r.scheme)
+    by_scheme = group(_runs_with_tested_curve(collection), lambda r: r.scheme)
     return {s: tested_curve(by_scheme[s], settings) for s in SCHEMES if s in by_scheme}
 
 
@@ -294,7 +298,7 @@ def yardsticks_of(runs: list[RunRecord], on_round_tests: bool = False) -> dict[s
 def tested_curve_yardsticks(collection: Collection) -> dict[str, EvalSummary]:
     """The yardsticks on the per-round test curve's own seeds, over the seeds of the
     ``fig4/`` runs with the curve; empty unless every such run has them."""
-    tested = [r for r in collection.of("fig4") if r.round_test_curve is not None]
+    tested = _runs_with_tested_curve(collection)
     if not tested or not all(r.round_test_yardsticks for r in tested):
         return {}
     return yardsticks_of(tested, on_round_tests=True)

@@ -361,10 +361,10 @@ TESTED_METRIC_LABELS = {
 }
 
 
-def _fmt_tested(metric: str, estimate: Estimate | None) -> str:
+def _fmt_tested(metric: str, estimate: Estimate | None, unit: str | None = None) -> str:
     """A tested-curve metric: the return to two digits, the rates in percent to one."""
     rate = metric != "average_reward"
-    return fmt(estimate, 1 if rate else 2, percent=rate)
+    return fmt(estimate, 1 if rate else 2, percent=rate, unit=unit)
 
 
 RULE_GAP_ROWS = {
@@ -410,9 +410,8 @@ def fig4_tested_block(
             for metric, estimates in c.metrics.items()
         ]
         for metric, (label, unit) in RULE_GAP_ROWS.items() if c.against_rule else ():
-            rate = metric != "average_reward"
             gaps = c.against_rule[metric]  # type: ignore[index]
-            rows.append([label, *(fmt(e, 1 if rate else 2, percent=rate, unit=unit) for e in gaps)])
+            rows.append([label, *(_fmt_tested(metric, e, unit) for e in gaps)])
         text += table(["step", *(f"{step:,}" for step in c.steps)], rows) + "\n\n"
     episodes = {c.episodes_per_task for c in curves.values()}
     per_task = f"{episodes.pop()} episodes" if len(episodes) == 1 else "a few episodes"
