@@ -305,15 +305,43 @@ def test_the_runs_table_lists_fig6_by_interval_not_by_name(tmp_path):
     assert rows == ["interval250-seed0", "interval500-seed0", "interval1000-seed0"]
 
 
-def test_fig6_names_a_best_interval_only_over_the_same_seeds():
-    def point(interval: int, seeds: list[int], final: float) -> IntervalPoint:
-        return IntervalPoint(interval, seeds, False, Estimate(final, 0.5, len(seeds)), None, None)
+def test_fig6_names_a_best_interval_over_the_seeds_every_interval_has():
+    def point(interval: int, finals: dict[int, float], tests: dict[int, float]) -> IntervalPoint:
+        seeds = sorted(finals)
+        mean = Estimate(float(np.mean(list(finals.values()))), 0.5, len(seeds))
+        return IntervalPoint(interval, seeds, False, mean, None, None, None, finals, tests)
 
-    same = fig6_block([point(500, [0, 1], 4.0), point(2000, [0, 1], 5.0)], SETTINGS, None)
-    mixed = fig6_block([point(500, [0], 6.0), point(2000, [0, 1], 5.0)], SETTINGS, None)
+    same = fig6_block(
+        [
+            point(500, {0: 4.0, 1: 4.0}, {0: 6.0, 1: 5.0}),
+            point(2000, {0: 5.0, 1: 6.0}, {0: 5.0, 1: 4.0}),
+        ],
+        SETTINGS,
+        None,
+    )
+    # interval 2,000 (fig4's runs) has a seed more: over seeds 0-1 alone 500 ends higher
+    borrowed = fig6_block(
+        [
+            point(500, {0: 4.0, 1: 7.0}, {0: 5.0, 1: 5.0}),
+            point(2000, {0: 5.0, 1: 5.0, 2: 9.0}, {0: 6.0, 1: 6.0, 2: 1.0}),
+        ],
+        SETTINGS,
+        None,
+    )
+    disjoint = fig6_block([point(500, {0: 6.0}, {}), point(2000, {1: 5.0}, {})], SETTINGS, None)
 
-    assert "Best interval here: 2,000 (final training reward 5.00 ± 0.50)" in same
-    assert "Best interval here" not in mixed and "No best interval is named" in mixed
+    half = T1 * math.sqrt(0.5) / math.sqrt(2)
+    assert (
+        "Best interval over the seeds every interval has (0, 1): by final training reward "
+        f"2,000 (5.50 ± {half:.2f}) and by test reward 500 (5.50 ± {half:.2f}); the paper: "
+        "2,000 with 6.84" in same
+    )
+    assert (
+        f"(0, 1): by final training reward 500 (5.50 ± {T1 * 1.5:.2f}) and by test reward "
+        "2,000 (6.00 ± 0.00)" in borrowed
+    )
+    assert "Best interval" not in disjoint
+    assert "No best interval is named: no seed has run at every interval." in disjoint
 
 
 def test_report_writes_figures_and_tables_beside_the_paper(root, tmp_path):
@@ -347,9 +375,9 @@ def test_report_writes_figures_and_tables_beside_the_paper(root, tmp_path):
         "| yes |" in text
     )
     assert "Unfinished (not used): `fig6/interval250-seed0`" in text
-    # interval 5 has seeds 0-1, interval 10 (fig4's runs) seeds 0-2: their means differ
-    # by traffic as much as by interval, so no best is named
-    assert "No best interval is named: the intervals run so far have different seeds." in text
+    # interval 5 has seeds 0-1, interval 10 (fig4's runs) seeds 0-2: the best is named over
+    # seeds 0-1 (interval 10's mean over 0-2 would compare traffic too)
+    assert "Best interval over the seeds every interval has (0, 1): by final training" in text
     assert "Total wall time of the 10 finished runs: 10.0 min, the sum" in text
 
 

@@ -17,7 +17,14 @@ from typing import Any
 import numpy as np
 
 from frl.report.collect import Collection
-from frl.report.measures import paired, per_seed, task_metrics, test_metric, yardstick_metric
+from frl.report.measures import (
+    PerSeed,
+    paired,
+    per_seed,
+    task_metrics,
+    test_metric,
+    yardstick_metric,
+)
 from frl.report.runs import RunRecord
 from frl.report.stats import (
     Estimate,
@@ -329,6 +336,10 @@ class IntervalPoint:
     total_bytes: Estimate | None
     over_full_throttle: Estimate | None = None
     """Test reward minus full throttle's, seed by seed (each run's own yardstick)."""
+    final_by_seed: PerSeed = field(default_factory=dict)
+    test_by_seed: PerSeed = field(default_factory=dict)
+    """The same two measures per seed, to set intervals side by side on the seeds they
+    share (interval 2,000 borrows fig4's runs, which may have more seeds)."""
 
 
 def fig6_runs(collection: Collection) -> dict[int, tuple[list[RunRecord], bool]]:
@@ -350,8 +361,8 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
     """FedAvg per interval (:func:`fig6_runs`)."""
     points = []
     for interval, (runs, borrowed) in fig6_runs(collection).items():
-        finals = [float(reward_curve(r, settings.episode_window)[-1]) for r in runs]
-        finals = [v for v in finals if np.isfinite(v)]
+        final_by_seed = per_seed(runs, lambda r: reward_curve(r, settings.episode_window)[-1])
+        finals = list(final_by_seed.values())
         tests = [r.evaluation["average"]["average_reward"] for r in runs if r.evaluation]
         total_bytes = [r.results["communication"].get("total_bytes") for r in runs]
         points.append(
@@ -366,6 +377,8 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
                     per_seed(runs, test_metric("average_reward")),
                     per_seed(runs, yardstick_metric("full_throttle", "average_reward")),
                 ),
+                final_by_seed=final_by_seed,
+                test_by_seed=per_seed(runs, test_metric("average_reward")),
             )
         )
     return points
