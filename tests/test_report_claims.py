@@ -101,6 +101,37 @@ def test_fig6_takes_the_best_other_interval_seed_by_seed(tmp_path):
     assert short.measure.endswith("the shortest interval") and short.verdict == "not run"
 
 
+def test_fig6_is_tested_on_the_test_reward_as_well_as_on_the_training_reward(tmp_path):
+    # The training curves end level (5 at every interval); the test rewards peak at 2,000.
+    tests = {
+        250: {0: 4.0, 1: 5.0},
+        2000: {0: 6.0, 1: 6.5},
+        1000: {0: 5.5, 1: 6.5},
+        10000: {0: 2.0, 1: 2.5},
+    }
+    runs: dict[int, list] = {}
+    for interval, by_seed in tests.items():
+        for seed, test in by_seed.items():
+            episodes = {f"client{i}_{t}": [(10, 5.0), (20, 5.0)] for i, t in enumerate(TASKS)}
+            path = make_run(tmp_path / f"interval{interval}-seed{seed}", "fedavg", seed,
+                            interval=interval, episodes=episodes,
+                            evaluation=evaluation(test, 0.1, 50))  # fmt: skip
+            runs.setdefault(interval, []).append(load_run(path))
+
+    trained = fig6_claims(runs, SETTINGS)
+    best, short, long = fig6_claims(runs, SETTINGS, tested=True)
+
+    assert all(claim.ours.mean == pytest.approx(0.0) for claim in trained)
+    assert best.measure == "test reward, interval 2,000 - the best other interval"
+    assert best.paper == "6.84 at 2,000 (training reward)"
+    assert best.note == "best other interval: 1,000, over seeds 0, 1"
+    assert best.ours.mean == pytest.approx(0.25) and best.ours.n == 2
+    assert short.measure == "test reward, interval 2,000 - interval 250"
+    assert short.ours.mean == pytest.approx(1.75) and long.ours.mean == pytest.approx(4.0)
+    assert short.verdict == "same direction, not significant"
+    assert long.verdict == "holds (significant)"
+
+
 def test_fig3_tests_the_weightings_the_paper_discusses_against_its_choice(tmp_path):
     # Per seed: the balanced weighting takes 50 steps with 10% collisions; the light time
     # cost 70-74 steps with none; the light collision penalty 45 steps with 20%.
