@@ -18,6 +18,7 @@ import numpy as np
 
 from frl.report.collect import Collection
 from frl.report.measures import (
+    Metric,
     PerSeed,
     paired,
     per_seed,
@@ -76,6 +77,11 @@ def reward_curve(run: RunRecord, window: int) -> np.ndarray:
         for ep in run.episodes.values()
     ]
     return np.mean(np.stack(curves), axis=0)
+
+
+def final_training_reward(settings: CurveSettings) -> Metric:
+    """A run's training curve (:func:`reward_curve`) at its last step."""
+    return lambda run: float(reward_curve(run, settings.episode_window)[-1])
 
 
 def step_reward_curve(run: RunRecord, window: int) -> np.ndarray:
@@ -361,9 +367,9 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
     """FedAvg per interval (:func:`fig6_runs`)."""
     points = []
     for interval, (runs, borrowed) in fig6_runs(collection).items():
-        final_by_seed = per_seed(runs, lambda r: reward_curve(r, settings.episode_window)[-1])
+        final_by_seed = per_seed(runs, final_training_reward(settings))
         finals = list(final_by_seed.values())
-        tests = [r.evaluation["average"]["average_reward"] for r in runs if r.evaluation]
+        test_by_seed = per_seed(runs, test_metric("average_reward"))
         total_bytes = [r.results["communication"].get("total_bytes") for r in runs]
         points.append(
             IntervalPoint(
@@ -371,14 +377,14 @@ def fig6(collection: Collection, settings: CurveSettings) -> list[IntervalPoint]
                 seeds=[r.seed for r in runs],
                 borrowed=borrowed,
                 final_reward=mean_ci(finals) if finals else Estimate(float("nan"), None, 0),
-                test_reward=_estimate(tests),
+                test_reward=_estimate(list(test_by_seed.values())),
                 total_bytes=_estimate(total_bytes),
                 over_full_throttle=paired(
-                    per_seed(runs, test_metric("average_reward")),
+                    test_by_seed,
                     per_seed(runs, yardstick_metric("full_throttle", "average_reward")),
                 ),
                 final_by_seed=final_by_seed,
-                test_by_seed=per_seed(runs, test_metric("average_reward")),
+                test_by_seed=test_by_seed,
             )
         )
     return points

@@ -23,6 +23,7 @@ from frl.report.aggregate import (
     CurveSettings,
     fig3_runs,
     fig6_runs,
+    final_training_reward,
     group,
     reward_curve,
 )
@@ -78,10 +79,6 @@ def verdict(difference: Estimate | None, expected_sign: int) -> str:
     if significant:
         return "holds (significant)" if same else "opposite (significant)"
     return "same direction, not significant" if same else "opposite direction, not significant"
-
-
-def final_training_reward(settings: CurveSettings) -> Metric:
-    return lambda run: float(reward_curve(run, settings.episode_window)[-1])
 
 
 def mean_training_reward(settings: CurveSettings) -> Metric:
