@@ -15,6 +15,7 @@ import torch.nn.functional as F
 from gymnasium import spaces
 from torch import Tensor, nn
 
+from frl.agents.acting import actor_action
 from frl.agents.checkpoint import CheckpointError, read_checkpoint, write_checkpoint
 from frl.agents.config import DDPGConfig
 from frl.agents.functional import hard_update, soft_update, td_target
@@ -265,13 +266,27 @@ class DDPG:
         low, high = self.action_low.astype(np.float32), self.action_high.astype(np.float32)
         return np.clip(env_action.astype(np.float32), low, high).reshape(self.action_shape)
 
-    def _flat_obs_tensor(self, obs: Any) -> Tensor | SparseRows:
-        flat = np.asarray(obs, dtype=np.float32).reshape(1, -1)
-        if flat.shape[1] != self.obs_dim:
+    def _flat_row(self, obs: Any) -> np.ndarray:
+        flat = np.asarray(obs, dtype=np.float32).reshape(-1)
+        if flat.size != self.obs_dim:
             raise ValueError(f"expected an observation of shape {self.obs_shape}")
+        return flat
+
+    def _flat_obs_tensor(self, obs: Any) -> Tensor | SparseRows:
+        flat = self._flat_row(obs).reshape(1, -1)
         if self.sparse:
             return SparseRows.from_numpy_row(flat).to(self.device)
         return torch.from_numpy(flat).to(self.device)
+
+    def _policy_action(self, flat: Any) -> np.ndarray:
+        """The deterministic policy's normalised action on one flat observation, in float32
+        whatever the precision (:mod:`frl.agents.acting`)."""
+        if not self.config.guide_residual:
+            return actor_action(self.actor, self._flat_row(flat), self.sparse)
+        teacher = self._guide_tensor([flat])
+        with torch.no_grad():
+            policy = self._policy(self.actor, self._flat_obs_tensor(flat), teacher)
+        return policy[0].double().cpu().numpy()
 
     def _autocast(self) -> Any:
         """The context of every forward pass: bf16 autocast under ``precision`` bf16.
@@ -302,11 +317,7 @@ class DDPG:
             action = self._warmup_decision(obs)
             self.last_policy_action = np.full(self.action_dim, np.nan)
         else:
-            flat = self.layout.flat(obs)
-            teacher = self._guide_tensor([flat]) if cfg.guide_residual else None
-            with torch.no_grad(), self._autocast():
-                policy = self._policy(self.actor, self._flat_obs_tensor(flat), teacher)
-            action = policy[0].double().cpu().numpy()
+            action = self._policy_action(self.layout.flat(obs))
             self.last_policy_action = action
             if explore:
                 action = self._explore_stretch(np.clip(action + self.noise(), -1.0, 1.0))
@@ -331,11 +342,14 @@ class DDPG:
             ValueError: an observation whose shape is neither the space's nor a batch of it.
         """
         batch, batched = self.layout.flat_batch(observation)
-        flat = torch.from_numpy(batch).to(self.device)
-        teacher = self._guide_tensor(list(batch)) if self.config.guide_residual else None
-        with torch.no_grad(), self._autocast():
-            inputs = SparseRows.from_dense(flat) if self.sparse else flat
-            actions = self._policy(self.actor, inputs, teacher).double().cpu().numpy()
+        if batched:
+            flat = torch.from_numpy(batch).to(self.device)
+            teacher = self._guide_tensor(list(batch)) if self.config.guide_residual else None
+            with torch.no_grad():  # float32, as acting on one observation
+                inputs = SparseRows.from_dense(flat) if self.sparse else flat
+                actions = self._policy(self.actor, inputs, teacher).double().cpu().numpy()
+        else:
+            actions = self._policy_action(batch[0])[None]
         if not deterministic:
             actions = np.clip(actions + np.stack([self.noise() for _ in actions]), -1.0, 1.0)
         env_actions = np.stack([self._denormalise(action) for action in actions])

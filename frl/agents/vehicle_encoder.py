@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from frl.agents.sparse_linear import SparseRows
@@ -83,9 +84,15 @@ class VehicleSetEncoder(nn.Module):
             sample, cell = torch.nonzero(grid[..., -1] > 0, as_tuple=True)
             channels = grid[sample, cell, :-1]
         vehicles = torch.cat([self.positions[cell], channels], dim=1)
+        return self.pool(vehicles, sample, batch, extra)
+
+    def pool(self, vehicles: Tensor, sample: Tensor, batch: int, extra: Tensor | None) -> Tensor:
+        """The encoding of ``batch`` observations from their ``vehicles`` ``[n, 2 + C - 1]``
+        (position, then channels), ``sample`` ``[n]`` naming each one's observation, and
+        the features after the grid (``extra``, or None without any)."""
         hidden = vehicles
         for layer in self.layers:
-            hidden = torch.relu(layer(hidden))
+            hidden = torch.relu(F.linear(hidden, layer.weight, layer.bias))
         pooled_sum = hidden.new_zeros(batch, self.width).index_add_(0, sample, hidden)
         # ReLU outputs are >= 0, so a max that includes the zero start is the vehicles' max
         # (and 0 for an observation without any vehicle).

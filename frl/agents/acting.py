@@ -1,0 +1,80 @@
+"""The actor on one observation: the forward pass behind every environment step.
+
+Collection runs the actor once per step, at batch 1. The update's machinery does not
+suit that: building compressed rows and finding the vehicles in them takes a dozen small
+torch calls, and bf16 autocast, the update's precision, costs more than it saves on one
+row. Measured at one thread (``benchmarks/collection.py``): 0.75 ms per action that way,
+against about 0.1 ms for the arithmetic of the actor's layers. So acting here finds the
+grid's vehicles in NumPy and runs the actor's own layers on them in float32, with
+nothing else in between.
+
+In float32 the numbers are exactly :meth:`frl.agents.Actor.forward`'s on the same
+observation: the same layers and kernels on tensors of the same shapes. An agent whose
+updates run in bf16 acts in float32 all the same: acting never uses autocast.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from frl.agents.networks import Actor
+from frl.agents.sparse_linear import SparseRows
+from frl.agents.vehicle_encoder import VehicleSetEncoder
+
+
+def actor_action(actor: Actor, flat_observation: np.ndarray, sparse: bool) -> np.ndarray:
+    """The actor's action, in [-1, 1] (float64 ``[action_dim]``), on one flat observation.
+
+    Args:
+        actor: the network, on any device.
+        flat_observation: float32 ``[features]``, as the agent stores it.
+        sparse: whether a flat (encoder-less) actor reads compressed rows
+            (``DDPGConfig.use_sparse``); the vehicles encoder reads the grid either way.
+    """
+    device = actor.layers[-1].weight.device
+    with torch.inference_mode():
+        x = _actor_input(actor, flat_observation, sparse, device)
+        first, *hidden, last = actor.layers
+        x = torch.relu_(first(x))
+        for layer in hidden:
+            x = torch.relu_(F.linear(x, layer.weight, layer.bias))
+        preactivation = F.linear(x, last.weight, last.bias)
+        if actor.output == "clip":
+            action = preactivation.clamp(-1.0, 1.0)
+        else:
+            action = torch.tanh(preactivation)
+        return action[0].to("cpu", torch.float64).numpy()
+
+
+def _actor_input(
+    actor: Actor, flat: np.ndarray, sparse: bool, device: torch.device
+) -> Tensor | SparseRows:
+    """What the actor's first layer reads: the encoding, compressed rows or a dense row."""
+    if isinstance(actor.encoder, VehicleSetEncoder):
+        return encode_one(actor.encoder, flat, device)
+    if sparse:
+        return SparseRows.from_numpy_row(flat).to(device)
+    return torch.from_numpy(flat.reshape(1, -1)).to(device)
+
+
+def encode_one(encoder: VehicleSetEncoder, flat: np.ndarray, device: torch.device) -> Tensor:
+    """``encoder(flat[None])`` for one flat observation, its vehicles found in NumPy."""
+    rows, columns, channels = encoder.grid_shape
+    grid = flat[: encoder.grid_features].reshape(rows * columns, channels)
+    cells = np.flatnonzero(grid[:, -1] > 0)
+    # + 0 turns a stored -0.0 into 0.0, as the compressed rows (which drop it) would.
+    features = grid[cells, :-1] + np.float32(0.0)
+    positions = encoder.positions
+    if positions.device.type == "cpu":  # a NumPy view: one copy instead of three torch calls
+        vehicles = torch.from_numpy(np.concatenate([positions.numpy()[cells], features], axis=1))
+    else:
+        cell = torch.from_numpy(cells).to(device)
+        vehicles = torch.cat([positions[cell], torch.from_numpy(features).to(device)], dim=1)
+    sample = torch.zeros(cells.size, dtype=torch.int64, device=device)
+    extra = None
+    if encoder.extra_features:
+        extra = torch.from_numpy(flat[encoder.grid_features :].reshape(1, -1)).to(device)
+    return encoder.pool(vehicles, sample, 1, extra)
