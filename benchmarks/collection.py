@@ -109,7 +109,7 @@ def training_step_parts(precision: str, steps: int) -> dict[str, float]:
         env._simulation.vehicles = clock.wrap("sumo", env._simulation.vehicles)
         env._grid = clock.wrap("observation", env._grid)
         agent.act = clock.wrap("acting", agent.act)
-        agent.noise = TimedNoise(agent.noise, clock)
+        agent.explorer.noise = TimedNoise(agent.explorer.noise, clock)
         agent.buffer.add = clock.wrap("buffer", agent.buffer.add)
         start = time.process_time()
         client.train(steps, upload=False)

@@ -301,11 +301,6 @@ def _check_route_observation(policy: Any, route_observation: bool) -> None:
 
 def _policy_callable(policy: Any) -> Callable[[Any], Any]:
     """``observation -> action`` from a callable or a ``predict``-er."""
-    if getattr(policy, "needs_guide", False) and policy.config.guide_residual:
-        raise ValueError(
-            "this agent's residual actor drives through its teacher: "
-            "frl.policies.install_guide(agent, env_config) first"
-        )
     predict = getattr(policy, "predict", None)
     if callable(predict):
         return lambda observation: predict(observation, deterministic=True)[0]

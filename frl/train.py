@@ -20,8 +20,10 @@ import contextlib
 import sys
 import traceback
 
+import yaml
 from omegaconf import DictConfig
 
+from frl.agents.retired import RETIRED_OPTIONS, RetiredOptionError, without_retired
 from frl.federation.workers import ClientFailure
 from frl.run_directory import RunDirectoryError
 from frl.run_directory import resolve as resolve_run_directory
@@ -40,6 +42,11 @@ def main() -> None:
     import hydra
 
     register_configs()
+    try:
+        sys.argv[1:] = without_retired_overrides(sys.argv[1:])
+    except RetiredOptionError as error:
+        print(f"frl.train: config error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
     problem = override_error(sys.argv[1:])
     if problem is not None:
         print(f"frl.train: config error: {problem}", file=sys.stderr)
@@ -88,6 +95,25 @@ def failure_summary(failure: ClientFailure) -> str:
         f"{line}; {saved}; continue with: python -m frl.train resume={failure.run_dir} "
         f"(traceback in {log_path})"
     )
+
+
+def without_retired_overrides(argv: list[str]) -> list[str]:
+    """``argv`` less the overrides that set a retired agent option to its off value
+    (:mod:`frl.agents.retired`), which change nothing.
+
+    Raises:
+        RetiredOptionError: an override that sets one to any other value.
+    """
+    kept = []
+    for arg in argv:
+        key, equals, value = arg.lstrip("+").partition("=")
+        name = key.removeprefix("agent.")
+        if not equals or name == key or name not in RETIRED_OPTIONS:
+            kept.append(arg)
+            continue
+        parsed = yaml.safe_load(value) if value else None
+        without_retired({name: parsed})  # raises unless it is the off value
+    return kept
 
 
 def override_error(argv: list[str]) -> str | None:

@@ -28,6 +28,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from frl.agents import DDPGConfig
 from frl.agents.config import FIELDS_ADDED_LATER
+from frl.agents.retired import RetiredOptionError, without_retired
 from frl.envs import EnvConfig, RewardConfig
 from frl.envs.config import REWARD_NAMES, TRAFFIC_PRESETS
 from frl.federation.client import ClientSpec
@@ -596,10 +597,15 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     - No ``yardsticks``: none were tested; re-testing such a run adds today's default.
     - An ``agent`` without n-step targets or held warm-up actions ran without them
       (:data:`frl.agents.config.FIELDS_ADDED_LATER`), where today's default has both.
+    - Retired agent options (:mod:`frl.agents.retired`) at their off values are dropped;
+      a run that used one is refused in one line.
     """
     saved = dict(saved)
     if isinstance(saved.get("agent"), dict):
-        saved["agent"] = {**FIELDS_ADDED_LATER, **saved["agent"]}
+        try:
+            saved["agent"] = {**FIELDS_ADDED_LATER, **without_retired(saved["agent"])}
+        except RetiredOptionError as error:
+            raise ConfigError(str(error)) from None
     env = dict(saved.get("env") or {})
     scenario = dict(env.get("scenario") or {})
     if scenario and "human_speed_dev" not in scenario:

@@ -1,6 +1,6 @@
 """A guided agent (DDPGConfig.guide): the teacher's actions stored with every transition,
-the Q-filtered imitation term and its schedule, and the residual actor, each against
-hand-computed numbers or its defining property."""
+the Q-filtered imitation term and its schedule, each against hand-computed numbers or
+its defining property."""
 
 from pathlib import Path
 
@@ -11,13 +11,7 @@ from gymnasium import spaces
 from test_agent_options import feed
 
 from frl.agents import DDPG, DDPGConfig
-from frl.agents.guide import (
-    guide_weight_at,
-    imitation_loss,
-    lower_only,
-    q_filter,
-    residual_action,
-)
+from frl.agents.guide import guide_weight_at, imitation_loss, lower_only, q_filter
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
 ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
@@ -74,11 +68,6 @@ def test_the_imitation_loss_by_hand():
     # 0.25; past the teacher's +1 bound: 0; 0.25; 6.25; masked out: 0
     expected = (0.25 + 0.0 + 0.25 + 6.25 + 0.0) / 5
     assert imitation_loss(preactivation, teacher, mask).item() == pytest.approx(expected)
-
-
-def test_a_residual_action_adds_twice_the_actor_to_the_teacher():
-    teacher = torch.tensor([[1.0], [-1.0]])
-    assert residual_action(teacher, torch.tensor([[-1.0], [0.25]])).tolist() == [[-1.0], [-0.5]]
 
 
 def test_a_guided_agent_stores_the_teachers_actions_at_both_ends_and_resumes_them(tmp_path: Path):
@@ -155,30 +144,6 @@ def test_a_decayed_imitation_weight_switches_the_term_off():
     assert "imitation_loss" in stats[4] and "imitation_loss" not in stats[7]
 
 
-def test_a_residual_actor_starts_at_the_teachers_action_and_learns_a_correction():
-    agent = DDPG(GRID, ACCEL, guided(guide_residual=True, guide_weight=0.0), seed=5)
-    agent.set_guide(brake_when_crowded)
-    crowded, empty = np.ones(GRID.shape, np.float32), np.zeros(GRID.shape, np.float32)
-    # The output layer starts within 3e-3 of zero: the teacher's action, nearly exactly.
-    assert agent.predict(crowded)[0][0] == pytest.approx(-1.0, abs=0.05)
-    assert agent.predict(empty)[0][0] == pytest.approx(1.0, abs=0.05)
-    both = np.stack([crowded, empty])
-    assert agent.predict(both)[0][:, 0] == pytest.approx([-1.0, 1.0], abs=0.05)
-    for _ in range(5):  # past the warm-up, act() follows the teacher too
-        agent.observe(empty, np.zeros(1), 0.0, empty, False)
-    agent.act(crowded, explore=False)
-    assert agent.last_policy_action[0] == pytest.approx(-1.0, abs=0.05)
-    with torch.no_grad():
-        agent.actor.layers[-1].bias.fill_(0.75)  # a correction of +1.5
-    assert agent.predict(crowded)[0][0] == pytest.approx(0.5, abs=0.05)
-    assert agent.predict(empty)[0][0] == 1.0
-    batch = agent.buffer.gather(np.arange(4), sparse=agent.sparse)
-    _, preactivation, _ = agent._inverting_gradients_loss(batch)
-    with torch.no_grad():
-        own = agent.actor.preactivation(batch.obs)
-    assert torch.allclose(preactivation, batch.guide_actions + 2.0 * own)
-
-
 @pytest.mark.parametrize(
     ("options", "message"),
     [
@@ -187,9 +152,7 @@ def test_a_residual_actor_starts_at_the_teachers_action_and_learns_a_correction(
         ({"guide_decay_steps": -5}, "guide_decay_steps"),
         ({"guide_filter": "sometimes"}, "guide_filter must be one of q, q_lower, none"),
         ({"guide_filter_margin": -0.1}, "guide_filter_margin"),
-        ({"guide_residual": "yes"}, "guide_residual"),
         ({"guide": "none", "guide_weight": 1.0}, "set guide=gap_acceptance"),
-        ({"guide_residual": True, "actor_update": "tanh"}, "inverting_gradients"),
     ],
 )
 def test_bad_guide_settings_fail_clearly(options, message):

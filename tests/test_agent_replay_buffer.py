@@ -180,17 +180,3 @@ def test_wrong_observation_size_raises() -> None:
     buffer = ReplayBuffer(2, (3,), 1, np.random.default_rng(0))
     with pytest.raises(ValueError, match="3 values"):
         buffer.add(np.zeros(4), np.zeros(1), 0.0, np.zeros(3), False)
-
-
-def test_a_terminal_fraction_of_each_batch_comes_from_episode_ends():
-    buffer = ReplayBuffer(1000, (3,), 1, np.random.default_rng(0))
-    for i in range(500):
-        buffer.add(np.full(3, i, np.float32), np.zeros(1), 0.0, np.zeros(3), i % 50 == 49)
-    slots = buffer.sample_slots_ends(200, 0.25)
-    ends = buffer.terminated[slots] == 1
-    assert len(slots) == 200 and ends[-50:].all()  # 50 drawn among the 10 ends
-    assert 0 < ends[:150].sum() < 15  # the uniform rest: about 2% ends
-    assert np.array_equal(buffer.sample_slots_ends(8, 0.0) < 500, np.ones(8, bool))
-    empty_of_ends = ReplayBuffer(10, (3,), 1, np.random.default_rng(0))
-    empty_of_ends.add(np.zeros(3), np.zeros(1), 0.0, np.zeros(3), False)
-    assert len(empty_of_ends.sample_slots_ends(4, 0.5)) == 4  # no end yet: all uniform

@@ -191,9 +191,3 @@ def test_evaluate_policy_refuses_an_agent_the_wrong_observation_before_any_episo
     agent = DDPG(grid_only, ACCEL, DDPGConfig(hidden_sizes=(16,)), seed=0)
     with pytest.raises(ValueError, match="pass route_observation=False"):
         evaluate_policy(agent, episodes=1, yardsticks=(), route_observation=True)
-    residual = DDPGConfig(
-        hidden_sizes=(16,), guide="gap_acceptance", guide_residual=True,
-        actor_update="inverting_gradients",
-    )  # fmt: skip
-    with pytest.raises(ValueError, match="install_guide"):
-        evaluate_policy(DDPG(grid_only, ACCEL, residual, seed=0), episodes=1, yardsticks=())

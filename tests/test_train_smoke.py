@@ -203,13 +203,12 @@ def test_multirun_over_two_seeds_in_a_subprocess(tmp_path):
     assert "step/s" not in done.stderr  # no progress bar in multirun
 
 
-def test_a_guided_route_observing_lap_agent_trains_and_tests(tmp_path):
+def test_a_guided_route_observing_agent_trains_and_tests(tmp_path):
     """The learning options of the driver study through the whole pipeline: a teacher
-    installed in every vehicle, Dict observations in the vehicles' agents, prioritised
-    replay, and a residual actor that drives through its teacher at the test."""
+    installed in every vehicle and Dict observations in the vehicles' agents."""
     overrides = [
-        "agent=ddpg-guided", "agent.guide_residual=true", "agent.replay=lap",
-        "env.route_observation=true", "agent.encoder=vehicles", "yardsticks=[gap_acceptance]",
+        "agent=ddpg-guided", "env.route_observation=true", "agent.encoder=vehicles",
+        "yardsticks=[gap_acceptance]",
     ]  # fmt: skip
     cfg = compose_config(tmp_path / "run", overrides)
     results = train(cfg)
@@ -220,8 +219,4 @@ def test_a_guided_route_observing_lap_agent_trains_and_tests(tmp_path):
     rule = evaluation["yardsticks"]["gap_acceptance"]["average"]
     assert rule["episodes"] == 6
     model = DDPG.load(next((tmp_path / "run" / "models").glob("*.pt")))
-    assert model.config.guide_residual and model.layout.parts == {
-        "grid": (26, 18, 3),
-        "route": (4,),
-    }
-    assert model.config.replay == "lap" and model.buffer.prioritized
+    assert model.config.guided and model.layout.parts == {"grid": (26, 18, 3), "route": (4,)}

@@ -4,7 +4,8 @@ from frl.agents.checkpoint import CheckpointError
 from frl.agents.config import DDPGConfig
 from frl.agents.ddpg import DDPG, is_target_key
 from frl.agents.functional import discounted_returns, hard_update, soft_update, td_target
-from frl.agents.networks import Actor, Critic
+from frl.agents.learn import training_step
+from frl.agents.networks import Actor, ActorCritic, Critic
 from frl.agents.noise import GaussianNoise, OrnsteinUhlenbeckNoise, make_noise
 from frl.agents.replay_buffer import Batch, ReplayBuffer
 from frl.agents.sparse_linear import InputLinear, SparseRows
@@ -12,6 +13,7 @@ from frl.agents.sparse_linear import InputLinear, SparseRows
 __all__ = [
     "DDPG",
     "Actor",
+    "ActorCritic",
     "Batch",
     "CheckpointError",
     "Critic",
@@ -27,4 +29,5 @@ __all__ = [
     "make_noise",
     "soft_update",
     "td_target",
+    "training_step",
 ]

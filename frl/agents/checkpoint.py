@@ -1,13 +1,23 @@
-"""Checkpoint files: atomic writes, ``weights_only`` loads and a format check."""
+"""Checkpoints of an agent: what they hold, atomic writes, ``weights_only`` loads, and the
+checks that refuse a file of another agent before anything is changed."""
 
 from __future__ import annotations
 
 import os
+import types
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
+from gymnasium import spaces
+from torch import Tensor
 
+from frl.agents.config import DDPGConfig
+from frl.agents.noise import generator_state, set_generator_state
+from frl.agents.observations import space_from_record
+from frl.agents.retired import RetiredOptionError
 from frl.fileio import atomic_write
 
 CHECKPOINT_FORMAT = "frl.agents.ddpg"
@@ -48,3 +58,154 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
             f"this frl reads version {CHECKPOINT_VERSION}"
         )
     return data
+
+
+def spaces_record(agent: Any) -> dict[str, Any]:
+    """The observation and action spaces of ``agent``, as a checkpoint keeps them."""
+    return {
+        "obs_shape": list(agent.obs_shape),
+        "obs_parts": agent.layout.record(),
+        "action_shape": list(agent.action_shape),
+        "action_low": torch.from_numpy(agent.action_low.copy()),
+        "action_high": torch.from_numpy(agent.action_high.copy()),
+    }
+
+
+def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
+    """Everything :meth:`frl.agents.DDPG.restore` needs to go on exactly: config, spaces,
+    networks, optimizers, the explorer's noise and generators, the pending n-step steps,
+    counters (and the replay buffer)."""
+    explorer = agent.explorer
+    held = explorer.held_action
+    return {
+        "config": agent.config.to_dict(),
+        "seed": agent.seed,
+        "spaces": spaces_record(agent),
+        "networks": {
+            name: {key: value.detach().cpu() for key, value in net.state_dict().items()}
+            for name, net in agent.networks.networks().items()
+        },
+        "optimizers": {
+            "actor": agent.actor_optimizer.state_dict(),
+            "critic": agent.critic_optimizer.state_dict(),
+        },
+        "noise": explorer.noise.state_dict(),
+        "n_step": agent.writer.pending.state_dict(),
+        "rngs": {
+            "explore": generator_state(explorer.warmup_rng),
+            "buffer": generator_state(agent.buffer.rng),
+        },
+        "counters": {"num_env_steps": agent.num_env_steps, "num_updates": agent.num_updates},
+        "warmup_action": None if held is None else torch.from_numpy(held.copy()),
+        "buffer": agent.buffer.state_dict() if include_buffer else None,
+    }
+
+
+def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:
+    """Load a :func:`agent_payload` file into ``agent``, checked before anything changes.
+
+    Raises:
+        CheckpointError: unreadable, foreign or malformed file, or one from an agent with
+            another config, other spaces or other network shapes.
+    """
+    data = read_checkpoint(path)
+    networks = agent.networks.networks()
+    try:
+        _check_compatible(agent, data, path)
+        for name, net in networks.items():
+            _check_state_dict(data["networks"][name], net.state_dict(), name)
+    except (KeyError, TypeError, AttributeError) as error:
+        raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
+    try:
+        for name, net in networks.items():
+            net.load_state_dict(data["networks"][name])
+        agent.actor_optimizer.load_state_dict(data["optimizers"]["actor"])
+        agent.critic_optimizer.load_state_dict(data["optimizers"]["critic"])
+        explorer = agent.explorer
+        explorer.noise.load_state_dict(data["noise"])
+        agent.writer.pending.load_state_dict(data.get("n_step", {}))
+        held = data.get("warmup_action")
+        explorer.held_action = None if held is None else held.numpy().astype(np.float64)
+        if data["buffer"] is not None:
+            agent.buffer.load_state_dict(data["buffer"])
+        else:
+            agent.buffer.pos = agent.buffer.size = 0
+        set_generator_state(explorer.warmup_rng, data["rngs"]["explore"])
+        set_generator_state(agent.buffer.rng, data["rngs"]["buffer"])
+        agent.num_env_steps = int(data["counters"]["num_env_steps"])
+        agent.num_updates = int(data["counters"]["num_updates"])
+    except (KeyError, TypeError, AttributeError, ValueError, RuntimeError) as error:
+        raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
+
+
+def saved_config(data: dict[str, Any], path: str | os.PathLike[str]) -> DDPGConfig:
+    """The config a checkpoint was written with (retired options refused in one line)."""
+    try:
+        return DDPGConfig.from_dict(data["config"])
+    except RetiredOptionError as error:
+        raise CheckpointError(f"{path}: {error}") from None
+    except (KeyError, TypeError, ValueError) as error:
+        raise CheckpointError(f"{path}: malformed checkpoint config ({error!r})") from error
+
+
+def _check_compatible(agent: Any, data: dict[str, Any], path: str | os.PathLike[str]) -> None:
+    # Keys added to DDPGConfig since a checkpoint was written read as what it ran with.
+    saved = saved_config(data, path).to_dict()
+    mine = agent.config.to_dict()
+    differing = sorted(k for k in set(saved) | set(mine) if saved.get(k) != mine.get(k))
+    if differing:
+        raise CheckpointError(f"checkpoint config differs from this agent's in {differing}")
+    spaces_saved, spaces_mine = data["spaces"], spaces_record(agent)
+    if spaces_saved.get("obs_parts") != spaces_mine["obs_parts"]:
+        raise CheckpointError(
+            f"checkpoint observation parts {spaces_saved.get('obs_parts')} != "
+            f"{spaces_mine['obs_parts']}"
+        )
+    for key in ("obs_shape", "action_shape"):
+        if list(spaces_saved[key]) != spaces_mine[key]:
+            raise CheckpointError(f"checkpoint {key} {spaces_saved[key]} != {spaces_mine[key]}")
+    for key in ("action_low", "action_high"):
+        if not torch.equal(spaces_saved[key], spaces_mine[key]):
+            raise CheckpointError(f"checkpoint {key} differs from this agent's action space")
+
+
+def _check_state_dict(saved: Any, current: dict[str, Tensor], prefix: str) -> None:
+    if not isinstance(saved, dict) or set(saved) != set(current):
+        raise CheckpointError(f"checkpoint {prefix} parameters do not match this agent's")
+    for key, tensor in current.items():
+        if not isinstance(saved[key], Tensor) or saved[key].shape != tensor.shape:
+            raise CheckpointError(f"checkpoint {prefix}.{key} has the wrong shape")
+
+
+def spaces_of(
+    data: dict[str, Any], path: str | os.PathLike[str]
+) -> tuple[spaces.Box | spaces.Dict, spaces.Box]:
+    """The observation and action spaces a checkpoint records."""
+    try:
+        record = data["spaces"]
+        observation = space_from_record(record["obs_shape"], record.get("obs_parts"))
+        shape = tuple(record["action_shape"])
+        low = record["action_low"].numpy().astype(np.float32).reshape(shape)
+        high = record["action_high"].numpy().astype(np.float32).reshape(shape)
+        return observation, spaces.Box(low, high, shape, dtype=np.float32)
+    except (KeyError, TypeError, AttributeError, ValueError) as error:
+        raise CheckpointError(f"{path}: malformed checkpoint spaces ({error!r})") from error
+
+
+class class_only:
+    """A classmethod that refuses to be called on an instance: ``agent.load(path)`` would
+    return a new agent and leave ``agent`` as it was, silently."""
+
+    def __init__(self, method: Callable[..., Any]) -> None:
+        self.method = method
+        self.__doc__ = method.__doc__
+
+    def __get__(self, instance: object, owner: type) -> Callable[..., Any]:
+        if instance is not None:
+            name = self.method.__name__
+            raise TypeError(
+                f"{owner.__name__}.{name} is a class method that returns a new agent: "
+                f"agent = {owner.__name__}.{name}(path); to load a file into this agent, "
+                "agent.restore(path)"
+            )
+        return types.MethodType(self.method, owner)

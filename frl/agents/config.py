@@ -7,14 +7,13 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from frl.agents.precision import PRECISIONS
+from frl.agents.retired import without_retired
 
 NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
 ENCODERS: tuple[str, ...] = ("flat", "vehicles")
 ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
-WARMUP_POLICIES: tuple[str, ...] = ("uniform", "gap_acceptance")
 GUIDES: tuple[str, ...] = ("none", "gap_acceptance")
 GUIDE_FILTERS: tuple[str, ...] = ("q", "q_lower", "none")
-REPLAYS: tuple[str, ...] = ("uniform", "lap")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
@@ -23,25 +22,12 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "precision": "float32",
     "encoder": "flat",
     "encoder_width": 64,
-    "action_repeat": 1,
-    "warmup_policy": "uniform",
-    "twin_critics": False,
-    "target_noise": 0.0,
-    "target_noise_clip": 0.5,
-    "policy_delay": 1,
-    "terminal_fraction": 0.0,
-    "explore_hold_probability": 0.0,
     "actor_update": "tanh",
-    "critic_layer_norm": False,
     "guide": "none",
     "guide_weight": 0.0,
     "guide_decay_steps": 0,
     "guide_filter": "q",
     "guide_filter_margin": 0.0,
-    "guide_residual": False,
-    "replay": "uniform",
-    "lap_alpha": 0.4,
-    "lap_min_priority": 1.0,
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -102,54 +88,10 @@ class DDPGConfig:
     """Mean steps each uniform warm-up action is held (geometric durations); 1: a new
     action every step (Table II's SB3). Held actions drive long stretches of braking and
     of accelerating, so the first updates see waiting and going (docs/studies.md)."""
-    explore_hold_probability: float = 0.0
-    """After the warm-up, the chance per decision that exploration drives a uniform action
-    held for a geometric stretch (mean ``warmup_hold_steps``) instead of the policy's
-    noisy one: temporally-extended epsilon-greedy (Dabney et al. 2021). OU noise restarts
-    at 0 every episode and spreads only 0.07-0.2 over the first 45 steps, so a policy at
-    full throttle never tries braking where braking would have mattered; 0: off."""
-    warmup_policy: str = "uniform"
-    """What drives the warm-up: ``uniform`` actions (held as above), or ``gap_acceptance``,
-    frl's rule-based driver (:class:`frl.policies.GapAcceptancePolicy`), its action
-    perturbed by N(0, ``noise_sigma``): learning from demonstrations, opt-in. The agent
-    gets the rule from whoever drives it (:meth:`frl.agents.DDPG.set_warmup_policy`;
-    frl's vehicles install it)."""
-    action_repeat: int = 1
-    """Environment steps each chosen action is held (1: a new action every step). The
-    agent learns from one transition per held action, its reward discounted inside, and
-    ``n_step`` counts those transitions; budgets, ``train_freq`` and ``learning_starts``
-    stay in environment steps."""
     n_step: int = 5
     """Steps summed in each critic target before bootstrapping (1: the one-step target of
     Table II). Five carry an arrival's +5 back to the decision to go five times faster
     (docs/studies.md)."""
-    twin_critics: bool = False
-    """TD3's clipped double Q (Fujimoto et al. 2018): two critics, each trained towards
-    the smaller of their two targets, against the overestimation of a lone critic; the
-    actor follows the first."""
-    target_noise: float = 0.0
-    """TD3's target policy smoothing: N(0, this) noise, in normalised action units and
-    clipped to +-``target_noise_clip``, on the target actor's action in every critic
-    target (0: off, DDPG)."""
-    target_noise_clip: float = 0.5
-    """Bound of the target policy smoothing noise."""
-    policy_delay: int = 1
-    """Critic updates per actor update (and target update), TD3's delayed policy updates
-    (1: every update, DDPG)."""
-    terminal_fraction: float = 0.0
-    """Share of each batch drawn from the transitions that end an episode (collisions and
-    arrivals), the rest uniform; 0: uniform replay (Table II). The few dozen collisions
-    a vehicle meets in 10,000 steps then reach the critic in every batch."""
-    replay: str = "uniform"
-    """How batches are drawn: ``uniform`` (Table II), or ``lap``, loss-adjusted prioritised
-    replay (Fujimoto et al. 2020; TD7): in proportion to max(|TD error|, ``lap_min_priority``)
-    ** ``lap_alpha``, new transitions at the largest priority, with a Huber critic loss of
-    threshold ``lap_min_priority`` (:mod:`frl.agents.prioritized`). Collisions are about 0.3%
-    of the transitions; uniform replay rarely shows them to the critic."""
-    lap_alpha: float = 0.4
-    """LAP's exponent of the priorities, in (0, 1] (TD7: 0.4)."""
-    lap_min_priority: float = 1.0
-    """LAP's smallest priority and the Huber loss's threshold, > 0 (TD7: 1)."""
     actor_update: str = "inverting_gradients"
     """How the actor bounds its action and learns: ``tanh`` (DDPG: a tanh output,
     gradients through it), or ``inverting_gradients`` (Hausknecht and Stone 2016): a
@@ -157,17 +99,12 @@ class DDPGConfig:
     left towards the bound it points to, and reversed past it. Through a saturated tanh
     almost no gradient passes, so an actor stuck at full throttle cannot learn to brake
     where its critic has learned that it should."""
-    critic_layer_norm: bool = False
-    """LayerNorm before every hidden ReLU of the critic(s) (Ba et al. 2016; as RLPD and
-    CrossQ use it): the hidden activations keep unit scale whatever the inputs, so a
-    critic whose inputs are a few sparse non-zeros starts at a useful scale and its
-    targets, which it chases, cannot blow up its features. The actor is unchanged."""
     guide: str = "none"
     """A teacher whose action is stored with every transition: ``none``, or
     ``gap_acceptance``, frl's rule-based driver (:class:`frl.policies.GapAcceptancePolicy`,
     installed by whoever drives the agent: :meth:`frl.agents.DDPG.set_guide`; frl's
-    vehicles do). What the teacher's actions are used for: ``guide_weight`` and
-    ``guide_residual``. An agent with a guide learns from the teacher as well as from its
+    vehicles do). What the teacher's actions are used for: ``guide_weight``. An agent
+    with a guide learns from the teacher as well as from its
     own driving: a guided agent, not the paper's."""
     guide_weight: float = 0.0
     """Weight of the imitation term in the actor's loss, the squared distance between the
@@ -186,11 +123,6 @@ class DDPGConfig:
     guide_filter_margin: float = 0.0
     """How far the Q-filter distrusts the critic: the actor leaves the teacher only where
     Q(s, actor) exceeds Q(s, teacher) by more than this."""
-    guide_residual: bool = False
-    """The actor learns a correction to the teacher (Silver et al. 2018, residual policy
-    learning): its action is clip(teacher(s) + 2 * actor(s)), so it drives like the teacher
-    from the first step (the output layer starts near zero) and can still reach either
-    bound. Needs ``actor_update=inverting_gradients`` and a ``guide``."""
     preactivation_l2: float = 0.0
     """Weight of the mean squared pre-tanh output in the actor loss: keeps the actor off
     tanh's flat tails, where no gradient can bring a saturated action back."""
@@ -229,8 +161,6 @@ class DDPGConfig:
             "sparse_min_features",
             "sparse_capacity",
             "encoder_width",
-            "action_repeat",
-            "policy_delay",
         ):
             value = getattr(self, name)
             _require(
@@ -252,14 +182,8 @@ class DDPGConfig:
             "critic_lr",
             "noise_sigma",
             "noise_theta",
-            "target_noise",
-            "target_noise_clip",
-            "terminal_fraction",
-            "explore_hold_probability",
             "guide_weight",
             "guide_filter_margin",
-            "lap_alpha",
-            "lap_min_priority",
         ):
             value = getattr(self, name)
             _require(
@@ -274,27 +198,6 @@ class DDPGConfig:
             self.noise in NOISE_KINDS, f"noise must be one of {NOISE_KINDS}, got {self.noise!r}"
         )
         _require(self.noise_sigma >= 0, f"noise_sigma must be >= 0, got {self.noise_sigma}")
-        _require(self.target_noise >= 0, f"target_noise must be >= 0, got {self.target_noise}")
-        _require(
-            0 <= self.explore_hold_probability <= 1,
-            f"explore_hold_probability must lie in [0, 1], got {self.explore_hold_probability}",
-        )
-        _require(
-            0 <= self.terminal_fraction < 1,
-            f"terminal_fraction must lie in [0, 1), got {self.terminal_fraction}",
-        )
-        _require(
-            self.target_noise_clip > 0,
-            f"target_noise_clip must be positive, got {self.target_noise_clip}",
-        )
-        _require(
-            isinstance(self.critic_layer_norm, bool),
-            f"critic_layer_norm must be true or false, got {self.critic_layer_norm!r}",
-        )
-        _require(
-            isinstance(self.twin_critics, bool),
-            f"twin_critics must be true or false, got {self.twin_critics!r}",
-        )
         _require(
             isinstance(self.warmup_hold_steps, (int, float))
             and 1 <= self.warmup_hold_steps < math.inf,
@@ -316,11 +219,6 @@ class DDPGConfig:
             "noise_theta * noise_dt must be < 2 for a stable OU process",
         )
         _require(
-            self.warmup_policy in WARMUP_POLICIES,
-            f"warmup_policy must be one of {', '.join(WARMUP_POLICIES)}, "
-            f"got {self.warmup_policy!r}",
-        )
-        _require(
             self.actor_update in ACTOR_UPDATES,
             f"actor_update must be one of {', '.join(ACTOR_UPDATES)}, got {self.actor_update!r}",
         )
@@ -330,19 +228,6 @@ class DDPGConfig:
             "actor_update=inverting_gradients leave it at 0",
         )
         self._check_guide()
-        _require(
-            self.replay in REPLAYS,
-            f"replay must be one of {', '.join(REPLAYS)}, got {self.replay!r}",
-        )
-        _require(0 < self.lap_alpha <= 1, f"lap_alpha must lie in (0, 1], got {self.lap_alpha}")
-        _require(
-            self.lap_min_priority > 0, f"lap_min_priority must be > 0, got {self.lap_min_priority}"
-        )
-        _require(
-            self.replay == "uniform" or self.terminal_fraction == 0,
-            "replay=lap draws by TD error; terminal_fraction (episode ends in every batch) "
-            "is for uniform replay: set one of them",
-        )
         _require(
             self.encoder in ENCODERS,
             f"encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}",
@@ -377,18 +262,8 @@ class DDPGConfig:
             f"guide_filter_margin must be >= 0, got {self.guide_filter_margin}",
         )
         _require(
-            isinstance(self.guide_residual, bool),
-            f"guide_residual must be true or false, got {self.guide_residual!r}",
-        )
-        uses_guide = self.guide_weight > 0 or self.guide_residual
-        _require(
-            self.guide != "none" or not uses_guide,
-            "guide_weight and guide_residual learn from a teacher: set guide=gap_acceptance",
-        )
-        _require(
-            not self.guide_residual or self.actor_update == "inverting_gradients",
-            "guide_residual needs actor_update=inverting_gradients (a clipped output that "
-            "can sit at the teacher's bound and still learn)",
+            self.guide != "none" or self.guide_weight == 0,
+            "guide_weight learns from a teacher: set guide=gap_acceptance",
         )
 
     @property
@@ -413,8 +288,10 @@ class DDPGConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> DDPGConfig:
         """Inverse of :meth:`to_dict`; unknown keys raise ``TypeError``. Keys of
-        :data:`FIELDS_ADDED_LATER` that ``data`` lacks take the values agents had before."""
-        data = {**FIELDS_ADDED_LATER, **data}
+        :data:`FIELDS_ADDED_LATER` that ``data`` lacks take the values agents had before;
+        retired keys (:mod:`frl.agents.retired`) at their off values are dropped, and at
+        any other value raise :class:`frl.agents.retired.RetiredOptionError`."""
+        data = {**FIELDS_ADDED_LATER, **without_retired(data)}
         if "hidden_sizes" in data:
             data["hidden_sizes"] = tuple(data["hidden_sizes"])
         return cls(**data)

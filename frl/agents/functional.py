@@ -1,4 +1,5 @@
-"""Pure maths of DDPG: TD target, target-network updates, discounted returns."""
+"""Pure maths of DDPG: TD target, the actor's inverting-gradients surrogate, target-network
+updates, FedProx's pull, discounted returns."""
 
 from __future__ import annotations
 
@@ -37,6 +38,32 @@ def hard_update(targets: Sequence[Tensor], sources: Sequence[Tensor]) -> None:
     if len(targets) != len(sources):
         raise ValueError(f"{len(targets)} targets but {len(sources)} sources")
     torch._foreach_copy_(list(targets), list(sources))
+
+
+def inverting_gradients_loss(preactivation: Tensor, dq_da: Tensor) -> Tensor:
+    """A surrogate whose gradient in ``preactivation`` (the actor's unbounded action ``p``)
+    is DDPG's by inverting gradients (Hausknecht and Stone 2016).
+
+    ``dq_da``, the critic's gradient at the clipped action, is scaled by ``(1 - p) / 2``
+    where it asks for more and ``(p + 1) / 2`` where it asks for less: it fades as the
+    output nears the bound it points to and turns round beyond it, so the output stays
+    within [-1, 1] and can always come back.
+    """
+    room = preactivation.detach()
+    scale = torch.where(dq_da > 0, (1.0 - room) / 2.0, (room + 1.0) / 2.0)
+    return -(dq_da * scale * preactivation).sum() / preactivation.shape[0]
+
+
+@torch.no_grad()
+def add_proximal_gradient(anchored: Sequence[tuple[Tensor, Tensor]], mu: float) -> None:
+    """FedProx (Li et al. 2020): add mu (w - w_anchor), the gradient of mu/2 ||w - w_anchor||^2,
+    to each ``(parameter, anchor)``'s gradient."""
+    for param, anchor in anchored:
+        pull = (param - anchor).mul_(mu)
+        if param.grad is None:
+            param.grad = pull
+        else:
+            param.grad.add_(pull)
 
 
 def discounted_returns(rewards: Sequence[float], gamma: float) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""Learning from a teacher: the imitation term of the actor's loss, its Q-filter, its
-schedule, and the residual action (:attr:`frl.agents.DDPGConfig.guide`).
+"""Learning from a teacher: the imitation term of the actor's loss, its Q-filter and its
+schedule (:attr:`frl.agents.DDPGConfig.guide`).
 
 Pure tensor maths, tested against hand-computed numbers in tests/test_agent_guide.py.
 Actions are in the actor's normalised units, [-1, 1].
@@ -9,10 +9,6 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor
-
-RESIDUAL_SCALE = 2.0
-"""A residual actor's output, in [-1, 1], is doubled before it is added to the teacher's
-action: from a teacher at either bound it can still reach the other."""
 
 
 def guide_weight_at(weight: float, decay_steps: int, step: int) -> float:
@@ -49,9 +45,3 @@ def imitation_loss(preactivation: Tensor, teacher: Tensor, mask: Tensor) -> Tens
     gap = torch.where(past_bound, torch.zeros_like(gap), gap)
     per_sample = gap.square().sum(dim=-1) if gap.dim() > 1 else gap.square()
     return (mask * per_sample).mean()
-
-
-def residual_action(teacher: Tensor, preactivation: Tensor) -> Tensor:
-    """The unbounded action of a residual actor: the teacher's action plus
-    ``RESIDUAL_SCALE`` times the actor's (Silver et al. 2018); the caller clips it."""
-    return teacher + RESIDUAL_SCALE * preactivation

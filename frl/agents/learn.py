@@ -1,16 +1,17 @@
-"""``DDPG.learn``: one agent trained on one gymnasium environment, the loop of
-Stable-Baselines3's ``model.learn``, with its TensorBoard tags where asked.
+"""The training step, and ``DDPG.learn``: one agent on one gymnasium environment, the loop
+of Stable-Baselines3's ``model.learn``, with its TensorBoard tags where asked.
 
-The loop is act, step, observe (gymnasium's ``terminated``: a time-limit cut-off still
-bootstraps), update, and at an episode's end reset and :meth:`DDPG.episode_start`. The
-federated runs of ``frl.train`` drive the same calls from frl.federation.
+A training step (:func:`training_step`) is act, step, observe (gymnasium's
+``terminated``: a time-limit cut-off still bootstraps) and update; at an episode's end the
+loop resets and calls :meth:`DDPG.episode_start`. :func:`learn` and the federated
+vehicles (frl.federation.client) run the same step.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from typing import Any, Protocol, TypeVar
+from typing import Any, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
@@ -37,6 +38,27 @@ class Learner(Protocol):
     ) -> None: ...
     def update(self) -> dict[str, float]: ...
     def episode_start(self) -> None: ...
+
+
+class Step(NamedTuple):
+    """What one training step did and saw."""
+
+    action: np.ndarray
+    next_obs: Any
+    reward: float
+    terminated: bool
+    truncated: bool
+    info: dict[str, Any]
+    losses: dict[str, float]
+    """The update's losses; empty where no update was due."""
+
+
+def training_step(agent: Learner, env: Any, obs: Any) -> Step:
+    """Act with exploration, step ``env``, observe the transition, update if due."""
+    action = agent.act(obs)
+    next_obs, reward, terminated, truncated, info = env.step(action)
+    agent.observe(obs, action, float(reward), next_obs, terminated)
+    return Step(action, next_obs, float(reward), terminated, truncated, info, agent.update())
 
 
 AgentT = TypeVar("AgentT", bound=Learner)
@@ -101,13 +123,15 @@ def learn(
         agent.episode_start()
         episode_return, episode_steps = 0.0, 0
         for step in range(1, int(total_timesteps) + 1):
-            action = agent.act(obs)
-            next_obs, reward, terminated, truncated, info = env.step(action)
-            agent.observe(obs, action, reward, next_obs, terminated)
-            for name, value in agent.update().items():
+            step_done = training_step(agent, env, obs)
+            for name, value in step_done.losses.items():
                 losses.setdefault(name, []).append(value)
-            obs = next_obs
-            episode_return += float(reward)
+            obs, terminated, truncated = (
+                step_done.next_obs,
+                step_done.terminated,
+                step_done.truncated,
+            )
+            episode_return += step_done.reward
             episode_steps += 1
             if writer is not None and agent.num_env_steps % LOSS_WINDOW == 0:
                 for name, values in losses.items():
@@ -127,7 +151,7 @@ def learn(
                 agent.episode_start()
                 episode_return, episode_steps = 0.0, 0
             bar.update(1)
-            if callback is not None and callback(agent, step, info) is False:
+            if callback is not None and callback(agent, step, step_done.info) is False:
                 break
     finally:
         bar.close()

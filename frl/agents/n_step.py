@@ -4,10 +4,6 @@ With n steps the critic's target is ``R + gamma^k * (1 - terminated) * Q'(s_{t+k
 where ``R = r_t + gamma r_{t+1} + ... + gamma^(k-1) r_{t+k-1}`` and k = n, or fewer where
 the episode ended first. The +5 of an arrival 40 steps after the decision to go reaches
 that decision in 40 / n target updates instead of 40.
-
-A transition pushed in may itself span several environment steps (an action held for
-``DDPGConfig.action_repeat`` steps, with its reward already discounted inside): n counts
-transitions, and the discounts count environment steps.
 """
 
 from __future__ import annotations

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import itertools
 from collections.abc import Sequence
 
@@ -91,8 +92,7 @@ class Critic(nn.Module):
 
     The action joins the observation (or the encoder's output) at the first layer
     (``layers.0.extra_weight``), which computes ``Linear(in + action_dim, h0)`` on
-    ``cat([x, action])``. With ``layer_norm`` each hidden layer's output is normalised
-    (``norms.i``) before its ReLU.
+    ``cat([x, action])``.
     """
 
     def __init__(
@@ -101,27 +101,68 @@ class Critic(nn.Module):
         action_dim: int,
         hidden_sizes: Sequence[int],
         encoder: nn.Module | None = None,
-        layer_norm: bool = False,
     ) -> None:
         super().__init__()
         self.encoder = encoder
         in_features = obs_dim if encoder is None else encoder.out_features
         first = InputLinear(in_features, hidden_sizes[0], extra_features=action_dim)
         self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, 1))
-        self.norms = (
-            nn.ModuleList(nn.LayerNorm(width) for width in hidden_sizes) if layer_norm else None
-        )
 
     def forward(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
         """Q-values, float32 (also under autocast)."""
         x = obs if self.encoder is None else self.encoder(obs)
-        x = self._activated(0, self.layers[0](x, action))
-        for index, layer in enumerate(self.layers[1:-1], start=1):
-            x = self._activated(index, layer(x))
+        # In place: addmm's backward needs only its inputs.
+        x = torch.relu_(self.layers[0](x, action))
+        for layer in self.layers[1:-1]:
+            x = torch.relu_(layer(x))
         return float32_layer(self.layers[-1], x).squeeze(-1)
 
-    def _activated(self, index: int, x: Tensor) -> Tensor:
-        """ReLU of hidden layer ``index``'s output, after its LayerNorm if there is one.
 
-        In place: addmm's and layer_norm's backward passes need only their inputs."""
-        return torch.relu_(x if self.norms is None else self.norms[index](x))
+NETWORK_NAMES: tuple[str, ...] = ("actor", "critic", "actor_target", "critic_target")
+"""The networks of :class:`ActorCritic`, the first part of its state-dict keys."""
+
+
+class ActorCritic(nn.Module):
+    """DDPG's four networks: actor, critic and their slowly following targets.
+
+    Its ``state_dict()`` keys are ``actor.layers.0.weight``, ``critic_target.layers.4.bias``
+    and so on: what FedAvg averages, checkpoints hold and the Flower wire carries.
+    """
+
+    def __init__(self, actor: Actor, critic: Critic) -> None:
+        super().__init__()
+        self.actor = actor
+        self.critic = critic
+        self.actor_target = copy.deepcopy(actor).requires_grad_(False)
+        self.critic_target = copy.deepcopy(critic).requires_grad_(False)
+
+    def online_parameters(self) -> list[nn.Parameter]:
+        return [*self.actor.parameters(), *self.critic.parameters()]
+
+    def target_parameters(self) -> list[nn.Parameter]:
+        return [*self.actor_target.parameters(), *self.critic_target.parameters()]
+
+    def networks(self) -> dict[str, nn.Module]:
+        """The four networks by name, in :data:`NETWORK_NAMES`' order."""
+        return {name: getattr(self, name) for name in NETWORK_NAMES}
+
+    def load_strict(self, state: dict[str, Tensor]) -> None:
+        """Copy a ``state_dict()``-shaped dict into the networks, in place.
+
+        Raises:
+            ValueError: a missing or unexpected key, or a shape mismatch (naming the key);
+                nothing is modified then.
+        """
+        expected = self.state_dict()
+        missing = [key for key in expected if key not in state]
+        if missing:
+            raise ValueError(f"federated state lacks key {missing[0]!r} ({len(missing)} missing)")
+        unexpected = [key for key in state if key not in expected]
+        if unexpected:
+            raise ValueError(f"federated state has unexpected key {unexpected[0]!r}")
+        for key, tensor in expected.items():
+            value = state[key]
+            if not isinstance(value, Tensor) or value.shape != tensor.shape:
+                shape = tuple(value.shape) if isinstance(value, Tensor) else type(value).__name__
+                raise ValueError(f"{key!r}: expected shape {tuple(tensor.shape)}, got {shape}")
+        self.load_state_dict(state)

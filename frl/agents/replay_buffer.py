@@ -24,7 +24,6 @@ import torch
 from torch import Tensor
 
 from frl.agents.noise import generator_state, set_generator_state
-from frl.agents.prioritized import proportional_slots
 from frl.agents.sparse_linear import SparseRows
 
 
@@ -153,8 +152,6 @@ class ReplayBuffer:
         sparse_width: initial non-zeros per stored observation (grows on demand).
         guided: store a teacher's actions at ``obs`` and ``next_obs`` with every
             transition (:attr:`frl.agents.DDPGConfig.guide`).
-        prioritized: keep a sampling priority per transition
-            (:meth:`sample_slots_prioritized`; :mod:`frl.agents.prioritized`).
     """
 
     def __init__(
@@ -166,7 +163,6 @@ class ReplayBuffer:
         sparse: bool = False,
         sparse_width: int = 64,
         guided: bool = False,
-        prioritized: bool = False,
     ) -> None:
         if capacity <= 0:
             raise ValueError(f"capacity must be positive, got {capacity}")
@@ -190,8 +186,6 @@ class ReplayBuffer:
         guide_shape = (capacity if guided else 0, action_dim)
         self.guide_actions = committed_when_written(guide_shape, np.float32)
         self.next_guide_actions = committed_when_written(guide_shape, np.float32)
-        self.prioritized = prioritized
-        self.priorities = committed_when_written((capacity if prioritized else 0,), np.float32)
         self.pos = 0
         self.size = 0
 
@@ -204,7 +198,6 @@ class ReplayBuffer:
         obs_bytes = self._obs.nbytes + self._next_obs.nbytes
         guide_bytes = self.guide_actions.nbytes + self.next_guide_actions.nbytes
         scalars = self.actions.nbytes + self.rewards.nbytes + self.terminated.nbytes
-        scalars += self.priorities.nbytes
         return obs_bytes + scalars + guide_bytes
 
     def add(
@@ -244,9 +237,6 @@ class ReplayBuffer:
                 raise ValueError("a guided buffer needs the teacher's actions of every transition")
             self.guide_actions[slot] = np.asarray(guide_action, np.float32).reshape(-1)
             self.next_guide_actions[slot] = np.asarray(next_guide_action, np.float32).reshape(-1)
-        if self.prioritized:
-            # A new transition at the largest priority stored: it is seen soon.
-            self.priorities[slot] = self.priorities[: self.size].max() if self.size else 1.0
         self.pos = (slot + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
@@ -266,42 +256,9 @@ class ReplayBuffer:
             raise ValueError("cannot sample from an empty replay buffer")
         return self.rng.integers(0, self.size, size=batch_size)
 
-    def sample_slots_ends(self, batch_size: int, terminal_fraction: float) -> np.ndarray:
-        """Like :meth:`sample_slots`, with ``round(terminal_fraction * batch_size)`` of the
-        slots drawn uniformly among terminal transitions (when the buffer holds any)."""
-        if terminal_fraction <= 0:
-            return self.sample_slots(batch_size)
-        ends = np.flatnonzero(self.terminated[: self.size])
-        count = round(terminal_fraction * batch_size) if ends.size else 0
-        if self.size == 0:
-            raise ValueError("cannot sample from an empty replay buffer")
-        uniform = self.rng.integers(0, self.size, size=batch_size - count)
-        return np.concatenate([uniform, ends[self.rng.integers(0, ends.size, size=count)]])
-
-    def sample_slots_prioritized(self, batch_size: int) -> np.ndarray:
-        """Slot indices drawn with replacement in proportion to their priorities."""
-        if not self.prioritized:
-            raise ValueError("this buffer keeps no priorities (prioritized=False)")
-        if self.size == 0:
-            raise ValueError("cannot sample from an empty replay buffer")
-        return proportional_slots(self.priorities[: self.size], batch_size, self.rng)
-
-    def set_priorities(self, slots: np.ndarray, priorities: np.ndarray) -> None:
-        """New priorities of the transitions at ``slots`` (a slot drawn twice keeps the last)."""
-        if not self.prioritized:
-            raise ValueError("this buffer keeps no priorities (prioritized=False)")
-        self.priorities[slots] = priorities
-
-    def sample(
-        self,
-        batch_size: int,
-        sparse: bool = False,
-        device: Any = "cpu",
-        terminal_fraction: float = 0.0,
-    ) -> Batch:
-        """Draw ``batch_size`` transitions; observations as :class:`SparseRows` if ``sparse``;
-        a ``terminal_fraction`` of them among the terminal transitions."""
-        slots = self.sample_slots_ends(batch_size, terminal_fraction)
+    def sample(self, batch_size: int, sparse: bool = False, device: Any = "cpu") -> Batch:
+        """Draw ``batch_size`` transitions; observations as :class:`SparseRows` if ``sparse``."""
+        slots = self.sample_slots(batch_size)
         return self.gather(slots, sparse=sparse, device=device)
 
     def gather(self, slots: np.ndarray, sparse: bool = False, device: Any = "cpu") -> Batch:
@@ -336,8 +293,6 @@ class ReplayBuffer:
             "horizons": torch.from_numpy(self.horizons[:n].copy()),
             "rng": generator_state(self.rng),
         }
-        if self.prioritized:
-            state["priorities"] = torch.from_numpy(self.priorities[:n].copy())
         if self.guided:
             state["guide_actions"] = torch.from_numpy(self.guide_actions[:n].copy())
             state["next_guide_actions"] = torch.from_numpy(self.next_guide_actions[:n].copy())
@@ -375,8 +330,6 @@ class ReplayBuffer:
         self.terminated[:n] = state["terminated"].numpy()
         # Buffers saved before n-step returns hold one-step transitions only.
         self.horizons[:n] = state["horizons"].numpy() if "horizons" in state else 1.0
-        if self.prioritized:
-            self.priorities[:n] = state["priorities"].numpy()
         if self.guided:
             self.guide_actions[:n] = state["guide_actions"].numpy()
             self.next_guide_actions[:n] = state["next_guide_actions"].numpy()

@@ -23,6 +23,7 @@ import numpy as np
 from torch import Tensor
 
 from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
+from frl.agents.learn import training_step
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
 from frl.fileio import write_json_atomic
@@ -178,12 +179,12 @@ class VehicleClient:
             if self._observation is None:
                 self._start_episode()
             observation = self._observation
-            action = agent.act(observation, explore=True)
+            step = training_step(agent, env, observation)
+            action, reward, info = step.action, step.reward, step.info
+            next_observation, terminated, truncated = step.next_obs, step.terminated, step.truncated
             actions["executed"][i] = action[0]
             actions["policy"][i] = agent.last_policy_action[0]
-            next_observation, reward, terminated, truncated, info = env.step(action)
-            agent.observe(observation, action, float(reward), next_observation, terminated)
-            for name, value in agent.update().items():
+            for name, value in step.losses.items():
                 if name in losses:
                     losses[name][i] = value
             rewards[i] = reward

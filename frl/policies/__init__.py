@@ -52,19 +52,14 @@ def make_yardstick(name: str, env: IntersectionEnv) -> Policy:
 
 
 TEACHERS: dict[str, Callable[[EnvConfig], Policy]] = {"gap_acceptance": GapAcceptancePolicy}
-"""The drivers an agent can learn from (``DDPGConfig.guide``, ``warmup_policy``), by name."""
+"""The drivers an agent can learn from (``DDPGConfig.guide``), by name."""
 
 
 def install_guide(agent: DDPG, env: EnvConfig) -> None:
-    """Give ``agent`` the teachers its config names for the scenario ``env``: the guide of
-    a guided agent (``DDPGConfig.guide``; a residual actor acts through it, so a loaded
-    one needs it before it drives) and the driver of a rule-driven warm-up. An agent that
-    names neither is left as it is."""
-    config = agent.config
-    if config.guide != "none":
-        agent.set_guide(TEACHERS[config.guide](env))
-    if config.warmup_policy != "uniform":
-        agent.set_warmup_policy(TEACHERS[config.warmup_policy](env))
+    """Give a guided ``agent`` (``DDPGConfig.guide``) its teacher for the scenario ``env``;
+    an agent without a guide is left as it is."""
+    if agent.config.guide != "none":
+        agent.set_guide(TEACHERS[agent.config.guide](env))
 
 
 __all__ = [

@@ -1,0 +1,83 @@
+"""Agent options that frl's studies measured, found not to help, and retired.
+
+A config or checkpoint may still name one at the value that switched it off: it loads
+as if the key were absent, so every run and checkpoint made before the retirement still
+reads. Any other value is refused in one line that names the key, the study that measured
+it (a section of docs/studies.md) and the commit that retired it, where the code is still
+there to read.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+RETIRING_COMMIT = "RETIRING_COMMIT"
+"""The commit that removed the options below (``git show`` it to read their code)."""
+
+
+@dataclass(frozen=True)
+class RetiredOption:
+    off: Any
+    """The value that left the agent as it is without the option."""
+    study: str
+    """Where docs/studies.md gives what it measured."""
+
+
+_DRIVE_WELL = '"Agents that drive well"'
+_LEVERS = '"The rule as a teacher, the task as an input, prioritised replay"'
+
+RETIRED_OPTIONS: dict[str, RetiredOption] = {
+    "action_repeat": RetiredOption(1, _DRIVE_WELL),
+    "explore_hold_probability": RetiredOption(0.0, _DRIVE_WELL),
+    "terminal_fraction": RetiredOption(0.0, _DRIVE_WELL),
+    "critic_layer_norm": RetiredOption(False, _DRIVE_WELL),
+    "warmup_policy": RetiredOption("uniform", _DRIVE_WELL),
+    "twin_critics": RetiredOption(False, _DRIVE_WELL),
+    "target_noise": RetiredOption(0.0, _DRIVE_WELL),
+    "target_noise_clip": RetiredOption(0.5, _DRIVE_WELL),
+    "policy_delay": RetiredOption(1, _DRIVE_WELL),
+    "replay": RetiredOption("uniform", _LEVERS),
+    "lap_alpha": RetiredOption(0.4, _LEVERS),
+    "lap_min_priority": RetiredOption(1.0, _LEVERS),
+    "guide_residual": RetiredOption(False, _LEVERS),
+}
+"""Each retired key, with its off value and its study."""
+
+
+class RetiredOptionError(ValueError):
+    """A config or checkpoint uses an option that frl no longer has."""
+
+
+def retired_message(key: str, value: Any) -> str:
+    """The one line that refuses ``key=value``."""
+    option = RETIRED_OPTIONS[key]
+    return (
+        f"agent.{key}={value!r} was retired: docs/studies.md, {option.study}, measured it "
+        f"as not helping, and commit {RETIRING_COMMIT} removed it; only {option.off!r} "
+        "(off) still loads"
+    )
+
+
+def is_off(key: str, value: Any) -> bool:
+    """Whether ``value`` is the retired ``key``'s off value (``1`` and ``1.0`` alike)."""
+    off = RETIRED_OPTIONS[key].off
+    if isinstance(off, bool) or isinstance(value, bool):
+        return isinstance(value, bool) and isinstance(off, bool) and value == off
+    return value == off
+
+
+def without_retired(options: Mapping[str, Any]) -> dict[str, Any]:
+    """``options`` less the retired keys set to their off values.
+
+    Raises:
+        RetiredOptionError: a retired key at any other value (the first such key).
+    """
+    kept = {}
+    for key, value in options.items():
+        if key not in RETIRED_OPTIONS:
+            kept[key] = value
+        elif not is_off(key, value):
+            raise RetiredOptionError(retired_message(key, value))
+    return kept
