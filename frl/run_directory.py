@@ -19,6 +19,8 @@ Only :mod:`frl.fileio` sits below this module, so anything in frl may import it.
 
 from __future__ import annotations
 
+import os
+
 import io
 import json
 from collections.abc import Callable, Iterable
@@ -53,6 +55,24 @@ RESUME_ROOTS = ("outputs", "multirun")
 
 class RunDirectoryError(ValueError):
     """A path is not the run directory it was taken for, or no run there can be resumed."""
+
+
+def check_can_make(path: str | Path) -> None:
+    """Raise :class:`RunDirectoryError` unless ``path`` is a writable directory or one that
+    can be made: the nearest part of it that exists must be a writable directory.
+
+    A read-only file system counts as not writable (``os.access`` reports it, for root too).
+    """
+    target = Path(path).absolute()
+    existing = target
+    while not existing.exists() and existing.parent != existing:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise RunDirectoryError(
+            f"cannot make run directory {target}: {existing} is not a directory"
+        )
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise RunDirectoryError(f"cannot make run directory {target}: {existing} is not writable")
 
 
 @dataclass

@@ -25,7 +25,7 @@ from omegaconf import DictConfig
 
 from frl.agents.retired import RETIRED_OPTIONS, RetiredOptionError, without_retired
 from frl.federation.workers import ClientFailure
-from frl.run_directory import RunDirectoryError
+from frl.run_directory import RunDirectoryError, check_can_make
 from frl.run_directory import resolve as resolve_run_directory
 from frl.train_config import ConfigError, one_line_error, register_configs, validate
 from frl.training import train
@@ -129,6 +129,7 @@ def override_error(argv: list[str]) -> str | None:
     from hydra import compose, initialize_config_module
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import HydraException
+    from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
     if any(arg.startswith("-") and arg not in _MULTIRUN_FLAGS for arg in argv):
@@ -142,6 +143,8 @@ def override_error(argv: list[str]) -> str | None:
     first, variants = [], []
     for override in parsed:
         if override.key_or_group.startswith("hydra."):
+            if override.key_or_group in ("hydra.run.dir", "hydra.sweep.dir"):
+                first.append(override.input_line)  # checked below: can it be made?
             continue
         if override.is_sweep_override():
             values = list(override.sweep_string_iterator())
@@ -151,12 +154,19 @@ def override_error(argv: list[str]) -> str | None:
         else:
             first.append(override.input_line)
     candidates = [first, *([*first[:i], line, *first[i + 1 :]] for i, line in variants)]
+    multirun = any(arg in _MULTIRUN_FLAGS for arg in argv)
     with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
         for overrides in candidates:
             try:
-                cfg = compose(config_name="config", overrides=overrides)
+                full = compose(config_name="config", overrides=overrides, return_hydra_config=True)
+                cfg = OmegaConf.masked_copy(full, [key for key in full if key != "hydra"])
                 validate(cfg, this_machine=launcher == "basic")
                 _check_resumed_directory(cfg.resume)
+                if launcher == "basic":  # a cluster's jobs make their directories there
+                    hydra_dir = full.hydra.sweep.dir if multirun else full.hydra.run.dir
+                    for path in (hydra_dir, None if multirun else cfg.run_dir):
+                        if path is not None:
+                            check_can_make(str(path))
             except (HydraException, OmegaConfBaseException) as error:
                 return one_line_error(error)
             except (ConfigError, RunDirectoryError) as error:

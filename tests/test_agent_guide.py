@@ -11,7 +11,7 @@ from gymnasium import spaces
 from test_agent_options import feed
 
 from frl.agents import DDPG, DDPGConfig
-from frl.agents.guide import guide_weight_at, imitation_loss, lower_only, q_filter
+from frl.agents.guide import guide_weight_at, imitation_loss, imitation_term, lower_only, q_filter
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
 ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
@@ -129,7 +129,9 @@ def test_the_q_filtered_term_uses_the_critics_values_of_both_actions(kind):
         preactivation = agent.actor.preactivation(batch.obs)
         q_actor = agent.critic(batch.obs, preactivation.clamp(-1, 1))
         q_teacher = agent.critic(batch.obs, batch.guide_actions)
-    loss, share = agent._imitation(batch, preactivation, q_actor)
+    loss, share = imitation_term(
+        agent.config, agent.critic, batch, preactivation, q_actor, agent._autocast
+    )
     mask = (q_actor <= q_teacher + 0.25).float()
     if kind == "q_lower":
         mask = lower_only(mask, preactivation.clamp(-1, 1), batch.guide_actions)

@@ -196,7 +196,7 @@ def test_inverting_gradients_scale_dq_da_by_the_room_left_and_turn_round_past_a_
     assert agent.actor.layers[-1].bias.grad.item() == pytest.approx(expected, rel=1e-5)
     for _ in range(300):  # comes back from past +1 and settles at the lower bound
         loss, _ = agent._actor_loss(batch, agent.actor.preactivation(batch.obs))
-        agent._descend(agent.actor_optimizer, loss, [])
+        agent._descend(agent.actor_optimizer, loss)
     with torch.no_grad():
         actions = agent.actor(batch.obs)
         p = agent.actor.preactivation(batch.obs)

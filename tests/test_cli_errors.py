@@ -107,6 +107,16 @@ def test_a_bad_value_in_a_sweep_is_found_before_any_job(run_cli, tmp_path):
     assert not (tmp_path / "multirun").exists()
 
 
+@pytest.mark.parametrize("key", ["run_dir", "hydra.run.dir", "-m hydra.sweep.dir"])
+def test_a_run_directory_that_cannot_be_made_is_refused_in_one_line(run_cli, key, tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a directory")
+    *flags, name = key.split()
+    result = run_cli("frl.train", *flags, f"{name}={blocker / 'run'}", "seed=0", cwd=tmp_path)
+    assert_one_line_error(result, "frl.train: config error:", f"{blocker} is not a directory")
+    assert blocker.read_text() == "not a directory" and sorted(tmp_path.iterdir()) == [blocker]
+
+
 def test_resuming_a_directory_with_no_run(run_cli, tmp_path):
     result = run_cli("frl.train", f"resume={tmp_path}", cwd=tmp_path)
     assert_one_line_error(result, "frl.train: config error:", "no checkpointed run there")

@@ -6,7 +6,7 @@ torch calls, and bf16 autocast, the update's precision, costs more than it saves
 row. Measured at one thread (``benchmarks/collection.py``): 0.75 ms per action that way,
 against about 0.1 ms for the arithmetic of the actor's layers. So acting here finds the
 grid's vehicles in NumPy and runs the actor's own layers on them in float32, with
-nothing else in between.
+nothing else in between. :class:`ActionScale` maps its [-1, 1] to the action space.
 
 In float32 the numbers are exactly :meth:`frl.agents.Actor.forward`'s on the same
 observation: the same layers and kernels on tensors of the same shapes. An agent whose
@@ -15,9 +15,12 @@ updates run in bf16 acts in float32 all the same: acting never uses autocast.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 import torch.nn.functional as F
+from gymnasium import spaces
 from torch import Tensor
 
 from frl.agents.networks import Actor
@@ -78,3 +81,27 @@ def encode_one(encoder: VehicleSetEncoder, flat: np.ndarray, device: torch.devic
     if encoder.extra_features:
         extra = torch.from_numpy(flat[encoder.grid_features :].reshape(1, -1)).to(device)
     return encoder.pool(vehicles, sample, 1, extra)
+
+
+class ActionScale:
+    """Between a Box action space's bounds and the actor's [-1, 1]."""
+
+    def __init__(self, space: spaces.Box) -> None:
+        if not isinstance(space, spaces.Box):
+            raise TypeError(f"action_space must be a gymnasium Box, got {space}")
+        if not (np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))):
+            raise ValueError("action_space bounds must be finite")
+        self.shape: tuple[int, ...] = tuple(space.shape)
+        self.low = space.low.astype(np.float64).reshape(-1)
+        self.high = space.high.astype(np.float64).reshape(-1)
+
+    def to_unit(self, action: Any) -> np.ndarray:
+        """An env action as the actor's, clipped to [-1, 1] (float64, flat)."""
+        action = np.asarray(action, dtype=np.float64).reshape(-1)
+        return np.clip(2.0 * (action - self.low) / (self.high - self.low) - 1.0, -1.0, 1.0)
+
+    def from_unit(self, action: np.ndarray) -> np.ndarray:
+        """The actor's action in the env's units, float32 within the bounds."""
+        env_action = self.low + (action + 1.0) * 0.5 * (self.high - self.low)
+        low, high = self.low.astype(np.float32), self.high.astype(np.float32)
+        return np.clip(env_action.astype(np.float32), low, high).reshape(self.shape)

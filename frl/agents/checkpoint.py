@@ -65,9 +65,9 @@ def spaces_record(agent: Any) -> dict[str, Any]:
     return {
         "obs_shape": list(agent.obs_shape),
         "obs_parts": agent.layout.record(),
-        "action_shape": list(agent.action_shape),
-        "action_low": torch.from_numpy(agent.action_low.copy()),
-        "action_high": torch.from_numpy(agent.action_high.copy()),
+        "action_shape": list(agent.scale.shape),
+        "action_low": torch.from_numpy(agent.scale.low.copy()),
+        "action_high": torch.from_numpy(agent.scale.high.copy()),
     }
 
 
@@ -136,6 +136,27 @@ def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:
         agent.num_updates = int(data["counters"]["num_updates"])
     except (KeyError, TypeError, AttributeError, ValueError, RuntimeError) as error:
         raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
+
+
+def load_agent(
+    cls: Any, path: str | os.PathLike[str], observation_space: Any, action_space: Any,
+    device: Any,
+) -> Any:  # fmt: skip
+    """``cls`` (the agent class) built with the checkpoint's config and seed, then restored;
+    spaces left out (None) are rebuilt from the file (the observation bounds unbounded)."""
+    data = read_checkpoint(path)
+    config = saved_config(data, path)
+    try:
+        seed = int(data["seed"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
+    if observation_space is None or action_space is None:
+        saved_observation, saved_action = spaces_of(data, path)
+        observation_space = observation_space or saved_observation
+        action_space = action_space or saved_action
+    agent = cls(observation_space, action_space, config, seed=seed, device=device)
+    restore_agent(agent, path)
+    return agent
 
 
 def saved_config(data: dict[str, Any], path: str | os.PathLike[str]) -> DDPGConfig:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -36,6 +37,40 @@ those agents ran with (which are not today's defaults)."""
 def _require(condition: bool, message: str) -> None:
     if not condition:
         raise ValueError(message)
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+POSITIVE_INTS = (
+    "buffer_size", "n_step", "batch_size", "train_freq", "gradient_steps",
+    "sparse_min_features", "sparse_capacity", "encoder_width",
+)  # fmt: skip
+_ANY: Callable[[float], bool] = math.isfinite
+RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] = {
+    "tau": (lambda v: v > 0, lambda v: v <= 1, "in (0, 1]"),
+    "gamma": (lambda v: v >= 0, lambda v: v <= 1, "in [0, 1]"),
+    "actor_lr": (lambda v: v > 0, _ANY, "positive and finite"),
+    "critic_lr": (lambda v: v > 0, _ANY, "positive and finite"),
+    "noise_sigma": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
+    "noise_theta": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
+    "noise_dt": (lambda v: v > 0, _ANY, "positive and finite"),
+    "warmup_hold_steps": (lambda v: v >= 1, _ANY, ">= 1 and finite"),
+    "preactivation_l2": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
+    "guide_weight": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
+    "guide_filter_margin": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
+}
+"""Numeric fields: (lower check, upper check, what the message says). NaN fails both."""
+CHOICES: dict[str, tuple[object, ...]] = {
+    "noise": NOISE_KINDS,
+    "actor_update": ACTOR_UPDATES,
+    "guide": GUIDES,
+    "guide_filter": GUIDE_FILTERS,
+    "encoder": ENCODERS,
+    "precision": PRECISIONS,
+    "sparse_input": (True, False, "auto"),
+}
 
 
 @dataclass(frozen=True)
@@ -147,71 +182,34 @@ class DDPGConfig:
     def __post_init__(self) -> None:
         hidden = tuple(self.hidden_sizes)
         object.__setattr__(self, "hidden_sizes", hidden)
-        _require(len(hidden) > 0, "hidden_sizes must name at least one hidden layer")
         _require(
-            all(isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in hidden),
-            f"hidden_sizes must be positive integers, got {hidden}",
+            len(hidden) > 0 and all(_is_int(h) and h > 0 for h in hidden),
+            f"hidden_sizes must name at least one hidden layer, as positive integers, got {hidden}",
         )
-        for name in (
-            "buffer_size",
-            "n_step",
-            "batch_size",
-            "train_freq",
-            "gradient_steps",
-            "sparse_min_features",
-            "sparse_capacity",
-            "encoder_width",
-        ):
+        for name in POSITIVE_INTS:
             value = getattr(self, name)
             _require(
-                isinstance(value, int) and not isinstance(value, bool) and value > 0,
-                f"{name} must be a positive integer, got {value!r}",
+                _is_int(value) and value > 0, f"{name} must be a positive integer, got {value!r}"
             )
-        _require(
-            isinstance(self.learning_starts, int) and self.learning_starts >= 0,
-            f"learning_starts must be a non-negative integer, got {self.learning_starts!r}",
-        )
+        for name in ("learning_starts", "guide_decay_steps"):
+            value = getattr(self, name)
+            _require(
+                _is_int(value) and value >= 0,
+                f"{name} must be a non-negative integer, got {value!r}",
+            )
+        for name, (low, high, text) in RANGES.items():
+            value = getattr(self, name)
+            number = isinstance(value, (int, float)) and not isinstance(value, bool)
+            _require(number and low(value) and high(value), f"{name} must be {text}, got {value!r}")
+        for name, choices in CHOICES.items():
+            value = getattr(self, name)
+            _require(
+                value in choices,
+                f"{name} must be one of {', '.join(map(str, choices))}, got {value!r}",
+            )
         _require(
             self.batch_size <= self.buffer_size,
             f"batch_size ({self.batch_size}) must not exceed buffer_size ({self.buffer_size})",
-        )
-        for name in (
-            "tau",
-            "gamma",
-            "actor_lr",
-            "critic_lr",
-            "noise_sigma",
-            "noise_theta",
-            "guide_weight",
-            "guide_filter_margin",
-        ):
-            value = getattr(self, name)
-            _require(
-                isinstance(value, (int, float)) and math.isfinite(value),
-                f"{name} must be a finite number, got {value!r}",
-            )
-        _require(0.0 < self.tau <= 1.0, f"tau must lie in (0, 1], got {self.tau}")
-        _require(0.0 <= self.gamma <= 1.0, f"gamma must lie in [0, 1], got {self.gamma}")
-        _require(self.actor_lr > 0, f"actor_lr must be positive, got {self.actor_lr}")
-        _require(self.critic_lr > 0, f"critic_lr must be positive, got {self.critic_lr}")
-        _require(
-            self.noise in NOISE_KINDS, f"noise must be one of {NOISE_KINDS}, got {self.noise!r}"
-        )
-        _require(self.noise_sigma >= 0, f"noise_sigma must be >= 0, got {self.noise_sigma}")
-        _require(
-            isinstance(self.warmup_hold_steps, (int, float))
-            and 1 <= self.warmup_hold_steps < math.inf,
-            f"warmup_hold_steps must be >= 1 and finite, got {self.warmup_hold_steps!r}",
-        )
-        _require(
-            isinstance(self.preactivation_l2, (int, float))
-            and 0 <= self.preactivation_l2 < math.inf,
-            f"preactivation_l2 must be >= 0 and finite, got {self.preactivation_l2!r}",
-        )
-        _require(self.noise_theta >= 0, f"noise_theta must be >= 0, got {self.noise_theta}")
-        _require(
-            isinstance(self.noise_dt, (int, float)) and 0 < self.noise_dt < math.inf,
-            f"noise_dt must be positive and finite, got {self.noise_dt!r}",
         )
         # theta*dt >= 2 makes the discretised OU process oscillate with growing amplitude.
         _require(
@@ -219,47 +217,9 @@ class DDPGConfig:
             "noise_theta * noise_dt must be < 2 for a stable OU process",
         )
         _require(
-            self.actor_update in ACTOR_UPDATES,
-            f"actor_update must be one of {', '.join(ACTOR_UPDATES)}, got {self.actor_update!r}",
-        )
-        _require(
             self.actor_update == "tanh" or self.preactivation_l2 == 0,
             "preactivation_l2 keeps a tanh actor off its flat tails; with "
             "actor_update=inverting_gradients leave it at 0",
-        )
-        self._check_guide()
-        _require(
-            self.encoder in ENCODERS,
-            f"encoder must be one of {', '.join(ENCODERS)}, got {self.encoder!r}",
-        )
-        _require(
-            self.precision in PRECISIONS,
-            f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}",
-        )
-        _require(
-            self.sparse_input in (True, False, "auto"),
-            f"sparse_input must be True, False or 'auto', got {self.sparse_input!r}",
-        )
-
-    def _check_guide(self) -> None:
-        _require(
-            self.guide in GUIDES,
-            f"guide must be one of {', '.join(GUIDES)}, got {self.guide!r}",
-        )
-        _require(self.guide_weight >= 0, f"guide_weight must be >= 0, got {self.guide_weight}")
-        _require(
-            isinstance(self.guide_decay_steps, int)
-            and not isinstance(self.guide_decay_steps, bool)
-            and self.guide_decay_steps >= 0,
-            f"guide_decay_steps must be a non-negative integer, got {self.guide_decay_steps!r}",
-        )
-        _require(
-            self.guide_filter in GUIDE_FILTERS,
-            f"guide_filter must be one of {', '.join(GUIDE_FILTERS)}, got {self.guide_filter!r}",
-        )
-        _require(
-            self.guide_filter_margin >= 0,
-            f"guide_filter_margin must be >= 0, got {self.guide_filter_margin}",
         )
         _require(
             self.guide != "none" or self.guide_weight == 0,

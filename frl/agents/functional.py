@@ -54,16 +54,34 @@ def inverting_gradients_loss(preactivation: Tensor, dq_da: Tensor) -> Tensor:
     return -(dq_da * scale * preactivation).sum() / preactivation.shape[0]
 
 
-@torch.no_grad()
-def add_proximal_gradient(anchored: Sequence[tuple[Tensor, Tensor]], mu: float) -> None:
-    """FedProx (Li et al. 2020): add mu (w - w_anchor), the gradient of mu/2 ||w - w_anchor||^2,
-    to each ``(parameter, anchor)``'s gradient."""
-    for param, anchor in anchored:
-        pull = (param - anchor).mul_(mu)
-        if param.grad is None:
-            param.grad = pull
-        else:
-            param.grad.add_(pull)
+class ProximalPull:
+    """FedProx (Li et al. 2020): the gradient of mu/2 ||w - w_anchor||^2, mu (w - w_anchor),
+    added to each anchored parameter's gradient before its optimizer steps."""
+
+    def __init__(self) -> None:
+        self.mu = 0.0
+        self.anchors: dict[object, list[tuple[Tensor, Tensor]]] = {}
+        """Per optimizer: (parameter, the value it is pulled towards)."""
+
+    def anchor(self, mu: float, networks: dict[object, torch.nn.Module]) -> None:
+        """Pull each optimizer's network towards its parameters as they are now; mu = 0:
+        no pull."""
+        if not mu >= 0:
+            raise ValueError(f"proximal mu must be >= 0, got {mu!r}")
+        self.mu = float(mu)
+        self.anchors = {
+            optimizer: [(p, p.detach().clone()) for p in net.parameters()] if mu else []
+            for optimizer, net in networks.items()
+        }
+
+    @torch.no_grad()
+    def add_gradient(self, optimizer: object) -> None:
+        for param, anchor in self.anchors.get(optimizer, ()):
+            pull = (param - anchor).mul_(self.mu)
+            if param.grad is None:
+                param.grad = pull
+            else:
+                param.grad.add_(pull)
 
 
 def discounted_returns(rewards: Sequence[float], gamma: float) -> np.ndarray:

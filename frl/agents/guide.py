@@ -1,11 +1,15 @@
 """Learning from a teacher: the imitation term of the actor's loss, its Q-filter and its
 schedule (:attr:`frl.agents.DDPGConfig.guide`).
 
-Pure tensor maths, tested against hand-computed numbers in tests/test_agent_guide.py.
-Actions are in the actor's normalised units, [-1, 1].
+Tensor maths, tested against hand-computed numbers in tests/test_agent_guide.py. Actions
+are in the actor's normalised units, [-1, 1].
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import AbstractContextManager
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -45,3 +49,25 @@ def imitation_loss(preactivation: Tensor, teacher: Tensor, mask: Tensor) -> Tens
     gap = torch.where(past_bound, torch.zeros_like(gap), gap)
     per_sample = gap.square().sum(dim=-1) if gap.dim() > 1 else gap.square()
     return (mask * per_sample).mean()
+
+
+def imitation_term(
+    config: Any, critic: Callable[[Any, Tensor], Tensor], batch: Any, preactivation: Tensor,
+    q_actor: Tensor, autocast: Callable[[], AbstractContextManager[Any]],
+) -> tuple[Tensor, Tensor]:  # fmt: skip
+    """The imitation term at full weight (the caller scales it: :func:`guide_weight_at`)
+    and the share of the batch it reaches: everywhere with ``guide_filter=none``, else
+    where the critic does not prefer the actor's action (``q_actor``) to the teacher's
+    (``batch.guide_actions``) by more than ``guide_filter_margin``, and for ``q_lower``
+    also wherever the actor would not brake harder than the teacher. The critic runs in
+    ``autocast()``, the update's precision."""
+    teacher = batch.guide_actions
+    mask = torch.ones(teacher.shape[0], device=teacher.device)
+    if config.guide_filter in ("q", "q_lower"):
+        with torch.no_grad(), autocast():
+            q_teacher = critic(batch.obs, teacher)
+        mask = q_filter(q_teacher, q_actor.detach(), config.guide_filter_margin)
+        if config.guide_filter == "q_lower":
+            actor_action = preactivation.detach().float().clamp(-1.0, 1.0)
+            mask = lower_only(mask, actor_action, teacher)
+    return imitation_loss(preactivation.float(), teacher, mask), mask.mean()

@@ -9,8 +9,11 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from frl.agents.config import DDPGConfig
+from frl.agents.observations import ObservationLayout
 from frl.agents.precision import float32_layer
 from frl.agents.sparse_linear import InputLinear, SparseRows
+from frl.agents.vehicle_encoder import VehicleSetEncoder
 
 FINAL_LAYER_INIT = 3e-3
 """Final layers start in U(-3e-3, 3e-3) so initial actions and Q-values are near zero
@@ -146,6 +149,13 @@ class ActorCritic(nn.Module):
         """The four networks by name, in :data:`NETWORK_NAMES`' order."""
         return {name: getattr(self, name) for name in NETWORK_NAMES}
 
+    def cpu_copy(self) -> dict[str, Tensor]:
+        """Detached contiguous CPU copies of every tensor of ``state_dict()``."""
+        return {
+            key: tensor.detach().to("cpu", memory_format=torch.contiguous_format, copy=True)
+            for key, tensor in self.state_dict().items()
+        }
+
     def load_strict(self, state: dict[str, Tensor]) -> None:
         """Copy a ``state_dict()``-shaped dict into the networks, in place.
 
@@ -166,3 +176,34 @@ class ActorCritic(nn.Module):
                 shape = tuple(value.shape) if isinstance(value, Tensor) else type(value).__name__
                 raise ValueError(f"{key!r}: expected shape {tuple(tensor.shape)}, got {shape}")
         self.load_state_dict(state)
+
+
+def build_network(
+    kind: type[Actor] | type[Critic], obs_dim: int, action_dim: int, config: DDPGConfig,
+    layout: ObservationLayout, generator: torch.Generator, device: torch.device,
+) -> Actor | Critic:  # fmt: skip
+    """An actor or critic as ``config`` describes it, initialised from ``generator`` alone.
+
+    Built on the meta device so that nn.Linear's own init never draws from the global
+    torch RNG; then materialised and initialised from ``generator`` only.
+    """
+    encoder = None
+    if config.encoder == "vehicles":
+        encoder = VehicleSetEncoder(layout.grid_shape, config.encoder_width, layout.extra_features)
+    options = {"output": "clip"} if kind is Actor and config.actor_update != "tanh" else {}
+    with torch.device("meta"):
+        network = kind(obs_dim, action_dim, config.hidden_sizes, encoder, **options)
+    network = network.to_empty(device="cpu")
+    if network.encoder is not None:
+        network.encoder.reset_parameters(generator)
+    init_mlp_(network.layers, generator)
+    return network.to(device)
+
+
+def make_adam(params: list[nn.Parameter], lr: float, device: torch.device) -> torch.optim.Adam:
+    """Adam with the fused kernel, which updates all parameters in one pass (on CPU since
+    torch 2.4), else the foreach one."""
+    try:
+        return torch.optim.Adam(params, lr=lr, fused=True)
+    except (RuntimeError, TypeError, ValueError):
+        return torch.optim.Adam(params, lr=lr, foreach=device.type != "cpu" or None)

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-RETIRING_COMMIT = "RETIRING_COMMIT"
+RETIRING_COMMIT = "7ff57ca"
 """The commit that removed the options below (``git show`` it to read their code)."""
 
 

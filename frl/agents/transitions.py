@@ -9,14 +9,38 @@ enters the replay buffer.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
+from frl.agents.acting import ActionScale
 from frl.agents.n_step import NStepAccumulator
+from frl.agents.observations import ObservationLayout
 from frl.agents.replay_buffer import ReplayBuffer
 
-Teacher = Callable[[np.ndarray], np.ndarray]
-"""A flat observation -> the teacher's action there, normalised to [-1, 1]."""
+
+class Teacher:
+    """A guided agent's teacher asked on stored (flat) observations, its actions normalised.
+
+    ``driver`` maps an observation as the environment gives it to an env action; it is
+    installed later (``DDPG.set_guide``), by whoever builds the environment.
+    """
+
+    def __init__(self, name: str, layout: ObservationLayout, scale: ActionScale) -> None:
+        self.name, self.layout, self.scale = name, layout, scale
+        self.driver: Callable[[Any], Any] | None = None
+
+    def __call__(self, flat: np.ndarray) -> np.ndarray:
+        if self.driver is None:
+            raise RuntimeError(
+                f"guide={self.name!r} needs the teacher: call agent.set_guide(policy) first "
+                "(frl's vehicles do; frl.policies.install_guide(agent, env_config) for a "
+                "loaded agent)"
+            )
+        observation = self.layout.unflat(flat)
+        if self.layout.parts is None:  # a Box's observation, whether stored flat or not
+            observation = np.asarray(observation).reshape(self.layout.shape)
+        return self.scale.to_unit(self.driver(observation)).astype(np.float32)
 
 
 class TransitionWriter:
