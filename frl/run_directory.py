@@ -19,10 +19,9 @@ Only :mod:`frl.fileio` sits below this module, so anything in frl may import it.
 
 from __future__ import annotations
 
-import os
-
 import io
 import json
+import os
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
