@@ -1,4 +1,4 @@
-"""The package's layering (README, "Layout"): no import circle, no import from a layer above.
+"""The package's layering (docs/layout.md): no import circle, no import from a layer above.
 
 Two checks of the same rule. The static one reads every ``import`` in frl, those inside
 functions included, so a lazy import cannot hide a circle. The dynamic one imports each
@@ -56,7 +56,7 @@ def layer_of(module: str) -> int:
     for index, layer in enumerate(LAYERS):
         if any(in_unit(module, unit) for unit in layer):
             return index
-    raise AssertionError(f"{module} is in no layer of LAYERS; add it there and to the README")
+    raise AssertionError(f"{module} is in no layer of LAYERS; add it there and to docs/layout.md")
 
 
 def in_unit(module: str, unit: str) -> bool:

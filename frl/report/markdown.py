@@ -420,8 +420,10 @@ def fig4_tested_block(
         f"vehicle on its own task, Central-DDPG's one agent) is tested with exploration off "
         f"on {per_task} per task, the same fixed seeds every round, none of them a final test "
         f"seed. One point a round: a hold can only be placed at a round's end, a resolution "
-        f"of one interval. Read arrivals beside the return: the reward pays for waiting, so "
-        f"a model that stands still until the time-out tests about 5.4."
+        f"of one interval. Read arrivals beside the return: the reward pays for moving, so "
+        f"a car that creeps and never arrives scores well (a constant 0.02 m/s^2 on seed 0's "
+        f"test episodes: 5.62, with 13.7% collisions and no arrival), while one that stands "
+        f"still scores 0."
     )
     parts = [
         f"{name.replace('_', ' ')} "
