@@ -1,0 +1,80 @@
+"""Retired agent options (frl.agents.retired): their off values still load, anything else
+is refused in one line naming the key, its study and the retiring commit."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+
+from frl.agents import DDPG, CheckpointError, DDPGConfig
+from frl.agents.retired import RETIRED_OPTIONS, RETIRING_COMMIT, RetiredOptionError
+from frl.train_config import ConfigError, migrate_saved_config
+
+GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
+ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
+SMALL = {"hidden_sizes": (16,), "buffer_size": 50, "batch_size": 4}
+ON = {
+    "action_repeat": 4,
+    "explore_hold_probability": 0.1,
+    "terminal_fraction": 0.2,
+    "critic_layer_norm": True,
+    "warmup_policy": "gap_acceptance",
+    "twin_critics": True,
+    "target_noise": 0.2,
+    "target_noise_clip": 0.3,
+    "policy_delay": 2,
+    "replay": "lap",
+    "lap_alpha": 0.6,
+    "lap_min_priority": 2.0,
+    "guide_residual": True,
+}
+
+
+def test_every_retired_option_has_an_on_value_here_and_is_no_field_any_more():
+    assert set(ON) == set(RETIRED_OPTIONS)
+    assert not set(RETIRED_OPTIONS) & set(DDPGConfig.__dataclass_fields__)
+    assert len(DDPGConfig.__dataclass_fields__) <= 30
+
+
+@pytest.mark.parametrize("key", sorted(RETIRED_OPTIONS))
+def test_a_config_at_the_off_value_loads_and_any_other_value_is_refused(key):
+    off = RETIRED_OPTIONS[key].off
+    assert DDPGConfig.from_dict({key: off}) == DDPGConfig.from_dict({})
+    with pytest.raises(RetiredOptionError) as refused:
+        DDPGConfig.from_dict({key: ON[key]})
+    message = str(refused.value)
+    assert "\n" not in message and f"agent.{key}=" in message
+    assert RETIRED_OPTIONS[key].study in message and f"commit {RETIRING_COMMIT}" in message
+
+
+def test_a_checkpoint_written_with_retired_keys_loads_at_off_and_is_refused_on(tmp_path: Path):
+    agent = DDPG(GRID, ACCEL, DDPGConfig(**SMALL), seed=1)
+    agent.save(tmp_path / "agent.pt")
+    data = torch.load(tmp_path / "agent.pt", weights_only=True)
+    data["config"].update({key: option.off for key, option in RETIRED_OPTIONS.items()})
+    torch.save(data, tmp_path / "off.pt")
+    loaded = DDPG.load(tmp_path / "off.pt")
+    assert loaded.config == agent.config
+    data["config"]["twin_critics"] = True
+    torch.save(data, tmp_path / "on.pt")
+    with pytest.raises(CheckpointError, match=r"agent\.twin_critics=True was retired"):
+        DDPG.load(tmp_path / "on.pt")
+    with pytest.raises(CheckpointError, match="was retired"):
+        agent.restore(tmp_path / "on.pt")
+
+
+def test_a_saved_run_config_with_a_retired_option_on_is_refused_in_one_line():
+    assert "replay" not in migrate_saved_config({"agent": {"replay": "uniform"}})["agent"]
+    with pytest.raises(ConfigError, match=r"agent\.replay='lap' was retired"):
+        migrate_saved_config({"agent": {"replay": "lap"}})
+
+
+def test_a_command_line_override_at_the_off_value_is_dropped_and_any_other_refused():
+    from frl.train import without_retired_overrides
+
+    argv = ["seed=1", "agent.twin_critics=false", "+agent.replay=uniform", "agent.tau=0.01"]
+    assert without_retired_overrides(argv) == ["seed=1", "agent.tau=0.01"]
+    with pytest.raises(RetiredOptionError, match="policy_delay"):
+        without_retired_overrides(["agent.policy_delay=2"])
