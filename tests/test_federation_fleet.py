@@ -141,16 +141,19 @@ def test_proximal_term_pulls_towards_the_global_model():
     with torch.no_grad():
         for p in agent.actor.parameters():
             p.add_(1.0)
-    pairs = agent._proximal_actor
+    pairs = agent.proximal.anchors[agent.actor_optimizer]
     for param, _ in pairs:
         param.grad = None
-    agent._add_proximal_gradient(pairs)
+    agent.proximal.add_gradient(agent.actor_optimizer)
     assert len(pairs) == len(list(agent.actor.parameters()))
+    assert len(agent.proximal.anchors[agent.critic_optimizer]) == len(
+        list(agent.critic.parameters())
+    )
     for param, pinned in pairs:
         torch.testing.assert_close(pinned, param.detach() - 1.0)  # the anchor did not move
         torch.testing.assert_close(param.grad, torch.full_like(param, 0.5))  # mu (w - anchor)
     agent.set_proximal_anchor(0.0)
-    assert agent._proximal_actor == [] and agent._proximal_critic == []
+    assert all(pairs == [] for pairs in agent.proximal.anchors.values())
 
 
 class _Killed(Exception):
