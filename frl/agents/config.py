@@ -49,17 +49,17 @@ POSITIVE_INTS = (
 )  # fmt: skip
 _ANY: Callable[[float], bool] = math.isfinite
 RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] = {
-    "tau": (lambda v: v > 0, lambda v: v <= 1, "in (0, 1]"),
-    "gamma": (lambda v: v >= 0, lambda v: v <= 1, "in [0, 1]"),
-    "actor_lr": (lambda v: v > 0, _ANY, "positive and finite"),
-    "critic_lr": (lambda v: v > 0, _ANY, "positive and finite"),
-    "noise_sigma": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
-    "noise_theta": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
-    "noise_dt": (lambda v: v > 0, _ANY, "positive and finite"),
-    "warmup_hold_steps": (lambda v: v >= 1, _ANY, ">= 1 and finite"),
-    "preactivation_l2": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
-    "guide_weight": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
-    "guide_filter_margin": (lambda v: v >= 0, _ANY, ">= 0 and finite"),
+    "tau": (lambda v: v > 0, lambda v: v <= 1, "lie in (0, 1]"),
+    "gamma": (lambda v: v >= 0, lambda v: v <= 1, "lie in [0, 1]"),
+    "actor_lr": (lambda v: v > 0, _ANY, "be positive and finite"),
+    "critic_lr": (lambda v: v > 0, _ANY, "be positive and finite"),
+    "noise_sigma": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
+    "noise_theta": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
+    "noise_dt": (lambda v: v > 0, _ANY, "be positive and finite"),
+    "warmup_hold_steps": (lambda v: v >= 1, _ANY, "be >= 1 and finite"),
+    "preactivation_l2": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
+    "guide_weight": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
+    "guide_filter_margin": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
 }
 """Numeric fields: (lower check, upper check, what the message says). NaN fails both."""
 CHOICES: dict[str, tuple[object, ...]] = {
@@ -200,7 +200,7 @@ class DDPGConfig:
         for name, (low, high, text) in RANGES.items():
             value = getattr(self, name)
             number = isinstance(value, (int, float)) and not isinstance(value, bool)
-            _require(number and low(value) and high(value), f"{name} must be {text}, got {value!r}")
+            _require(number and low(value) and high(value), f"{name} must {text}, got {value!r}")
         for name, choices in CHOICES.items():
             value = getattr(self, name)
             _require(
