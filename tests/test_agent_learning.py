@@ -3,7 +3,8 @@
 Pendulum episodes end only by the 200-step time limit (truncated, never terminated), so
 learning here also depends on truncated transitions bootstrapping. Seeds 0-5 all reached
 -120 to -270 mean return over the last 10 episodes at this budget; random play scores
-about -1200 and the threshold is -400. The same bar holds in bf16 (``agent.precision``).
+about -1200 and the threshold is -400. ``benchmarks/pendulum.py`` runs the same check in
+bf16, which most CPUs emulate several times slower.
 """
 
 import gymnasium as gym
@@ -16,8 +17,8 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("precision", ["float32", "bf16"])
-def test_learns_pendulum_swing_up(precision: str) -> None:
+def test_learns_pendulum_swing_up() -> None:
+    precision = "float32"
     steps = 8_000
     config = DDPGConfig(
         hidden_sizes=(64, 64),
@@ -29,7 +30,7 @@ def test_learns_pendulum_swing_up(precision: str) -> None:
         critic_lr=1e-3,
         noise="gaussian",
         noise_sigma=0.1,  # normalised units: 0.2 N m on Pendulum's [-2, 2] torque
-        precision=precision,  # bf16 runs (emulated, slower) where the CPU lacks it
+        precision=precision,
     )
     env = gym.make("Pendulum-v1")
     agent = DDPG(env.observation_space, env.action_space, config, seed=0)
