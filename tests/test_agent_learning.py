@@ -3,9 +3,8 @@
 Pendulum episodes end only by the 200-step time limit (truncated, never terminated), so
 learning here also depends on truncated transitions bootstrapping. Seeds 0-5 all reached
 -120 to -270 mean return over the last 10 episodes at this budget; random play scores
-about -1200 and the threshold is -400. The agent and the check are ``benchmarks/pendulum.py``'s,
-which also runs it in
-bf16, which most CPUs emulate several times slower.
+about -1200 and the threshold is -400. The agent and the check are those of
+``benchmarks/pendulum.py``, which also runs them in bf16 (most CPUs emulate it, slowly).
 """
 
 import importlib.util
