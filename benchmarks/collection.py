@@ -30,12 +30,10 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable
-from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from omegaconf import OmegaConf
 
 from frl.agents import DDPGConfig
 from frl.agents.precision import has_native_bf16
@@ -43,6 +41,7 @@ from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.federation.client import ClientSpec, VehicleClient
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from agent_speed import default_agent_fields
 from cpu_settings import configure_cpu_training
 
 PARTS = ("sumo", "observation", "forward", "noise", "buffer", "rest")
@@ -83,10 +82,8 @@ class TimedNoise:
 def default_agent(precision: str) -> DDPGConfig:
     """``agent=ddpg`` (its preset file) at ``precision``, acting from the first step with
     no update ever due."""
-    preset = OmegaConf.to_container(OmegaConf.load(files("frl.conf") / "agent" / "ddpg.yaml"))
-    preset.pop("name")
-    preset.update(precision=precision, learning_starts=0, train_freq=10**9)
-    return DDPGConfig.from_dict(preset)
+    fields = {**default_agent_fields(), "precision": precision}
+    return DDPGConfig.from_dict({**fields, "learning_starts": 0, "train_freq": 10**9})
 
 
 def training_step_parts(precision: str, steps: int) -> dict[str, float]:

@@ -95,9 +95,11 @@ class ActionScale:
         self.low = space.low.astype(np.float64).reshape(-1)
         self.high = space.high.astype(np.float64).reshape(-1)
 
-    def to_unit(self, action: Any) -> np.ndarray:
-        """An env action as the actor's, clipped to [-1, 1] (float64, flat)."""
-        action = np.asarray(action, dtype=np.float64).reshape(-1)
+    def to_unit(self, action: Any, batch: bool = False) -> np.ndarray:
+        """An env action as the actor's, clipped to [-1, 1] (float64, flat); with ``batch``
+        a batch of them, one flat row each."""
+        action = np.asarray(action, dtype=np.float64)
+        action = action.reshape(len(action), -1) if batch else action.reshape(-1)
         return np.clip(2.0 * (action - self.low) / (self.high - self.low) - 1.0, -1.0, 1.0)
 
     def from_unit(self, action: np.ndarray) -> np.ndarray:

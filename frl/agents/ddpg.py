@@ -285,10 +285,10 @@ class DDPG:
         if self.layout.parts is not None and not isinstance(observations, np.ndarray):
             observations = [self.layout.flat(o) for o in observations]
         x = torch.from_numpy(np.asarray(observations, dtype=np.float32).reshape(-1, self.obs_dim))
-        unit = [self.scale.to_unit(a) for a in np.asarray(actions).reshape(len(x), -1)]
+        unit = self.scale.to_unit(np.asarray(actions).reshape(len(x), -1), batch=True)
         inputs = SparseRows.from_dense(x).to(self.device) if self.sparse else x.to(self.device)
         with torch.no_grad(), self._autocast():
-            q = self.critic(inputs, torch.from_numpy(np.float32(unit)).to(self.device))
+            q = self.critic(inputs, torch.from_numpy(unit.astype(np.float32)).to(self.device))
         return q.reshape(-1).double().cpu().numpy()
 
     # ---------------------------------------------------------- federated state

@@ -126,18 +126,14 @@ def learn(
             step_done = training_step(agent, env, obs)
             for name, value in step_done.losses.items():
                 losses.setdefault(name, []).append(value)
-            obs, terminated, truncated = (
-                step_done.next_obs,
-                step_done.terminated,
-                step_done.truncated,
-            )
+            obs = step_done.next_obs
             episode_return += step_done.reward
             episode_steps += 1
             if writer is not None and agent.num_env_steps % LOSS_WINDOW == 0:
                 for name, values in losses.items():
                     writer.add_scalar(f"train/{name}", float(np.mean(values)), agent.num_env_steps)
                 losses.clear()
-            if terminated or truncated:
+            if step_done.terminated or step_done.truncated:
                 agent.episode_returns.append(episode_return)
                 agent.episode_lengths.append(episode_steps)
                 if writer is not None:
