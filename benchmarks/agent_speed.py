@@ -11,7 +11,7 @@ process and on the same threads: ``pip install -c constraints.txt -e '.[bench]'`
 (Stable-Baselines3 is never a dependency of frl itself). Without it the script prints
 frl's figures and says how to add the comparison.
 
-    python benchmarks/agent_speed.py [--blocks 16] [--threads N] [--profile]
+    python benchmarks/agent_speed.py [--blocks 16] [--threads N] [--profile] [--device cpu]
         [--precisions float32,bf16] [--option n_step=1 ...] [--variant "NAME KEY=VALUE ..."]
         [--dense] [--skip-sb3] [--skip-floor]
 
@@ -52,6 +52,7 @@ from frl.agents.functional import soft_update
 from frl.agents.precision import has_native_bf16, resolve_precision
 from frl.envs import TASKS, EnvConfig, IntersectionEnv
 from frl.policies import install_guide
+from frl.train_config import ConfigError, check_device
 
 # The helpers beside this script, also under PYTHONSAFEPATH=1 (docs/reproduction.md).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -125,11 +126,15 @@ class Learner:
         """One training step."""
         raise NotImplementedError
 
+    device = torch.device("cpu")
+
     def block(self) -> float:
         """Run one block; milliseconds per training step."""
         started = time.perf_counter()
         for _ in range(BLOCK):
             self.step()
+        if self.device.type == "cuda":  # the block ends when its kernels do
+            torch.cuda.synchronize(self.device)
         return (time.perf_counter() - started) / BLOCK * 1e3
 
 
@@ -137,15 +142,20 @@ class FrlLearner(Learner):
     """An frl DDPG: act + observe + update per step, after ``learning_starts`` + 50."""
 
     def __init__(
-        self, label: str, config: DDPGConfig, scenes: RecordedScenes, route: bool = False
+        self,
+        label: str,
+        config: DDPGConfig,
+        scenes: RecordedScenes,
+        route: bool = False,
+        device: str = "cpu",
     ) -> None:
-        self.label = label
+        self.label, self.device = label, torch.device(device)
         obs_space: spaces.Space = spaces.Box(-2.0, 2.0, GRID_SHAPE, dtype=np.float32)
         if route:  # the env's route_observation: the straight task, 10 m before the line
             route_space = spaces.Box(-10.0, 1.0, (4,), dtype=np.float32)
             obs_space = spaces.Dict({"grid": obs_space, "route": route_space})
         act_space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
-        self.agent = DDPG(obs_space, act_space, config, seed=0)
+        self.agent = DDPG(obs_space, act_space, config, seed=0, device=device)
         install_guide(self.agent, EnvConfig())
         grids = scenes.replay()
         route_part = np.array([0.0, 1.0, 0.0, 1.0], np.float32)
@@ -397,6 +407,9 @@ def main() -> None:
     parser.add_argument("--skip-floor", action="store_true", help="no eager-PyTorch floor")
     parser.add_argument("--skip-buffer", action="store_true")
     parser.add_argument(
+        "--device", default="cpu", help="where frl's networks and updates run (cpu, cuda)"
+    )
+    parser.add_argument(
         "--option", action="append", default=[], metavar="KEY=VALUE", help="a DDPGConfig field"
     )
     parser.add_argument(
@@ -407,15 +420,23 @@ def main() -> None:
     options = parse_options(parser, args.option)
     variants = [parse_variant(parser, text) for text in args.variant]
     precisions = args.precisions.split(",")
+    try:
+        device = check_device(args.device)
+    except ConfigError as error:
+        parser.error(str(error))
     for name in precisions:
-        resolve_precision(name, "cpu")  # an unknown name fails here, before any timing
-    with_sb3 = not args.skip_sb3 and importlib.util.find_spec("stable_baselines3") is not None
+        resolve_precision(name, device)  # an unknown name fails here, before any timing
+    on_cpu = torch.device(device).type == "cpu"
+    # The floor and Stable-Baselines3 are CPU rows: beside another device they would not pair.
+    with_sb3 = (
+        on_cpu and not args.skip_sb3 and importlib.util.find_spec("stable_baselines3") is not None
+    )
 
     threads = configure_cpu_training(args.threads)
     scenes = RecordedScenes()
-    native = has_native_bf16("cpu")
+    native = has_native_bf16(device)
     print(
-        f"torch {torch.__version__}, {threads} threads, native bf16: "
+        f"torch {torch.__version__}, device {device}, {threads} threads, native bf16: "
         f"{'yes' if native else 'no (bf16 is emulated)'}; {len(scenes.observations)} "
         f"recorded scenes, {scenes.mean_nonzeros:.1f} non-zeros each; blocks of {BLOCK} "
         "steps, the agents taking turns"
@@ -433,25 +454,32 @@ def main() -> None:
             f"frl, Table II agent, {name}",
             config(**{**TABLE_II, **options, "precision": name}),
             scenes,
+            device=device,
         )
         for name in precisions
     ]
     default = config(**options)
-    used = resolve_precision(default.precision, "cpu")
+    used = resolve_precision(default.precision, device)
     resolved = f" ({used})" if used != default.precision else ""
     learners.append(
-        FrlLearner(f"frl, default agent, {default.precision}{resolved}", default, scenes)
+        FrlLearner(
+            f"frl, default agent, {default.precision}{resolved}", default, scenes, device=device
+        )
     )
     for name, fields, route in variants:
         try:
             variant = config(**{**options, **fields})
         except ValueError as error:
             parser.error(f"--variant {name}: {error}")
-        learners.append(FrlLearner(f"frl, default agent + {name}", variant, scenes, route))
+        learners.append(
+            FrlLearner(f"frl, default agent + {name}", variant, scenes, route, device=device)
+        )
     if args.dense:
         dense = config(**{**TABLE_II, **options, "sparse_input": False})
-        learners.append(FrlLearner("frl, Table II agent, dense first layer", dense, scenes))
-    if not args.skip_floor:
+        learners.append(
+            FrlLearner("frl, Table II agent, dense first layer", dense, scenes, device=device)
+        )
+    if on_cpu and not args.skip_floor:
         bf16 = resolve_precision("auto", "cpu") == "bf16"
         floor_dtype = torch.bfloat16 if bf16 else torch.float32
         learners.append(EagerFloor(config(**{**TABLE_II, **options}), floor_dtype))
@@ -479,6 +507,8 @@ def main() -> None:
         for learner in learners[:-1]:
             ratio = reference / float(np.median(times[learner.label]))
             print(f"  {learner.label:<44} {ratio:5.2f}x")
+    elif not on_cpu:
+        print(f"on {device}: frl's rows only (the floor and Stable-Baselines3 are CPU rows)")
     elif not args.skip_sb3:
         print(
             "Stable-Baselines3 is not installed, so there is no side-by-side figure: "

@@ -44,11 +44,12 @@ class SparseRows(NamedTuple):
     def batch_size(self) -> int:
         return int(self.offsets.shape[0])
 
-    def to(self, device: torch.device | str) -> SparseRows:
+    def to(self, device: torch.device | str, non_blocking: bool = True) -> SparseRows:
+        """The same rows on ``device`` (``Tensor.to``'s signature, so a batch moves alike)."""
         return SparseRows(
-            self.indices.to(device, non_blocking=True),
-            self.values.to(device, non_blocking=True),
-            self.offsets.to(device, non_blocking=True),
+            self.indices.to(device, non_blocking=non_blocking),
+            self.values.to(device, non_blocking=non_blocking),
+            self.offsets.to(device, non_blocking=non_blocking),
             self.num_features,
             None if self.by_feature is None else self.by_feature.to(device),
         )
@@ -91,13 +92,14 @@ class SparseRows(NamedTuple):
 
     @classmethod
     def from_numpy_row(cls, row: np.ndarray) -> SparseRows:
-        """One flat observation as a batch of one row (for acting: no torch ops to build)."""
+        """One flat observation as a batch of one row, on the CPU as its NumPy source is
+        (for acting: no torch ops to build)."""
         flat = np.asarray(row, dtype=np.float32).reshape(-1)
         nonzero = np.flatnonzero(flat)
         return cls(
             torch.from_numpy(nonzero),
             torch.from_numpy(flat[nonzero]),
-            torch.zeros(1, dtype=torch.int64),
+            torch.zeros(1, dtype=torch.int64, device="cpu"),
             int(flat.size),
         )
 

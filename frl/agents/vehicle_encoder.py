@@ -113,7 +113,7 @@ class VehicleSetEncoder(nn.Module):
         in_grid = rows.indices < self.grid_features
         occupied = rows.indices % width == width - 1
         occupied = torch.nonzero(occupied & (rows.values > 0) & in_grid)[:, 0]
-        wanted = keys[occupied, None] - (width - 1) + torch.arange(width - 1)
+        wanted = keys[occupied, None] - (width - 1) + torch.arange(width - 1, device=keys.device)
         found = torch.searchsorted(keys, wanted).clamp_(max=max(keys.numel() - 1, 0))
         channels = torch.where(keys[found] == wanted, rows.values[found], 0.0)
         return row_ids[occupied], rows.indices[occupied] // width, channels
