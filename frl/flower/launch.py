@@ -254,6 +254,8 @@ class LocalFederation:
                 start_new_session=True,
             )
         _wait_for_port(self.port, self._superlink, self.start_timeout_s, "the SuperLink")
+        # One at a time, from this thread: a vehicle process stops when the thread that
+        # started it ends (PR_SET_PDEATHSIG, frl.federation.workers).
         for index in range(self.num_vehicles):
             node = VehicleNode(
                 superlink=self.address,
@@ -269,6 +271,8 @@ class LocalFederation:
             node.start()
 
     def close(self) -> None:
+        # A SuperNode takes seconds to sign off from the SuperLink: signal them together.
+        stop_processes([node.supernode for node in self._nodes if node.supernode is not None])
         for node in self._nodes:
             node.close()
         self._nodes = []
