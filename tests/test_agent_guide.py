@@ -11,7 +11,7 @@ from gymnasium import spaces
 from test_agent_options import feed
 
 from frl.agents import DDPG, DDPGConfig
-from frl.agents.guide import guide_weight_at, imitation_loss, imitation_term, lower_only, q_filter
+from frl.agents.guide import imitation_loss, imitation_term, lower_only, q_filter
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
 ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
@@ -37,19 +37,10 @@ def brake_when_crowded(observation: np.ndarray) -> np.ndarray:
     return np.array([-1.0 if observation.reshape(-1)[0] > 0.5 else 1.0], np.float32)
 
 
-def test_the_imitation_weight_falls_linearly_to_zero():
-    assert guide_weight_at(2.0, 0, 10**9) == 2.0
-    assert guide_weight_at(2.0, 1000, 0) == 2.0
-    assert guide_weight_at(2.0, 1000, 250) == pytest.approx(1.5)
-    assert guide_weight_at(2.0, 1000, 1000) == 0.0
-    assert guide_weight_at(2.0, 1000, 5000) == 0.0
-
-
-def test_the_q_filter_lets_the_actor_leave_only_where_the_critic_prefers_it_by_the_margin():
+def test_the_q_filter_lets_the_actor_leave_only_where_the_critic_prefers_it():
     q_teacher = torch.tensor([1.0, 1.0, 1.0, 1.0])
     q_actor = torch.tensor([0.5, 1.0, 1.4, 2.0])
-    assert q_filter(q_teacher, q_actor, 0.0).tolist() == [1.0, 1.0, 0.0, 0.0]
-    assert q_filter(q_teacher, q_actor, 0.5).tolist() == [1.0, 1.0, 1.0, 0.0]
+    assert q_filter(q_teacher, q_actor).tolist() == [1.0, 1.0, 0.0, 0.0]
 
 
 def test_a_lower_only_filter_lets_the_actor_leave_the_teacher_only_to_brake():
@@ -121,7 +112,7 @@ def test_the_imitation_term_pulls_the_actor_to_the_teacher_on_the_filtered_state
 
 @pytest.mark.parametrize("kind", ["q", "q_lower"])
 def test_the_q_filtered_term_uses_the_critics_values_of_both_actions(kind):
-    agent = DDPG(GRID, ACCEL, guided(guide_filter=kind, guide_filter_margin=0.25), seed=3)
+    agent = DDPG(GRID, ACCEL, guided(guide_filter=kind), seed=3)
     agent.set_guide(brake_when_crowded)
     feed(agent, 8)
     batch = agent.buffer.gather(np.arange(4), sparse=agent.sparse)
@@ -132,18 +123,11 @@ def test_the_q_filtered_term_uses_the_critics_values_of_both_actions(kind):
     loss, share = imitation_term(
         agent.config, agent.critic, batch, preactivation, q_actor, agent._autocast
     )
-    mask = (q_actor <= q_teacher + 0.25).float()
+    mask = (q_actor <= q_teacher).float()
     if kind == "q_lower":
         mask = lower_only(mask, preactivation.clamp(-1, 1), batch.guide_actions)
     assert share.item() == pytest.approx(mask.mean().item())
     assert loss.item() == pytest.approx(imitation_loss(preactivation, batch.guide_actions, mask))
-
-
-def test_a_decayed_imitation_weight_switches_the_term_off():
-    agent = DDPG(GRID, ACCEL, guided(guide_decay_steps=6), seed=4)
-    agent.set_guide(brake_when_crowded)
-    stats = feed(agent, 8)
-    assert "imitation_loss" in stats[4] and "imitation_loss" not in stats[7]
 
 
 @pytest.mark.parametrize(
@@ -151,9 +135,7 @@ def test_a_decayed_imitation_weight_switches_the_term_off():
     [
         ({"guide": "oracle"}, "guide must be one of"),
         ({"guide_weight": -1.0}, "guide_weight"),
-        ({"guide_decay_steps": -5}, "guide_decay_steps"),
         ({"guide_filter": "sometimes"}, "guide_filter must be one of q, q_lower, none"),
-        ({"guide_filter_margin": -0.1}, "guide_filter_margin"),
         ({"guide": "none", "guide_weight": 1.0}, "set guide=gap_acceptance"),
     ],
 )

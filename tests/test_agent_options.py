@@ -78,24 +78,6 @@ def test_held_warm_up_actions_last_geometric_stretches():
     assert np.all(table_two[1:] != table_two[:-1])  # hold 1 (Table II): a new one each step
 
 
-def test_the_preactivation_penalty_pulls_a_saturated_actor_back():
-    options = {"preactivation_l2": 1.0, "hidden_sizes": (16,), "actor_update": "tanh"}
-    config = DDPGConfig(**{**SMALL.to_dict(), **options})
-    agent = DDPG(GRID, ACCEL, config)
-    with torch.no_grad():  # saturate the actor: a large output bias
-        agent.actor.layers[-1].bias.fill_(5.0)
-    rng = np.random.default_rng(1)
-    agent.episode_start()
-    for t in range(40):
-        o = rng.uniform(0, 1, GRID.shape).astype(np.float32)
-        agent.observe(o, np.array([1.0], np.float32), 0.0, o, terminated=t % 10 == 9)
-    before = agent.actor.layers[-1].bias.item()
-    for _ in range(20):
-        agent.update()
-    # Zero rewards give the critic nothing to pull with; the penalty alone lowers it.
-    assert agent.actor.layers[-1].bias.item() < before
-
-
 def test_options_survive_a_checkpoint_and_old_checkpoints_still_load(tmp_path: Path):
     config = DDPGConfig(**{**SMALL.to_dict(), "n_step": 4, "hidden_sizes": (16,)})
     agent = DDPG(GRID, ACCEL, config, seed=3)
@@ -118,7 +100,7 @@ def test_options_survive_a_checkpoint_and_old_checkpoints_still_load(tmp_path: P
     plain = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), **legacy}))
     plain.save(tmp_path / "old.pt")
     data = torch.load(tmp_path / "old.pt", weights_only=True)
-    for key in ("n_step", "warmup_hold_steps", "preactivation_l2"):
+    for key in ("n_step", "warmup_hold_steps"):
         del data["config"][key]
     del data["n_step"], data["warmup_action"]
     torch.save(data, tmp_path / "old.pt")
@@ -144,7 +126,6 @@ def test_n_step_over_transitions_that_span_several_steps():
     [
         ("n_step", 0),
         ("warmup_hold_steps", 0.5),
-        ("preactivation_l2", -1.0),
         ("actor_update", "clip"),
     ],
 )

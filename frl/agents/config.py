@@ -19,16 +19,13 @@ GUIDE_FILTERS: tuple[str, ...] = ("q", "q_lower", "none")
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
     "n_step": 1,
-    "preactivation_l2": 0.0,
     "precision": "float32",
     "encoder": "flat",
     "encoder_width": 64,
     "actor_update": "tanh",
     "guide": "none",
     "guide_weight": 0.0,
-    "guide_decay_steps": 0,
     "guide_filter": "q",
-    "guide_filter_margin": 0.0,
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -57,9 +54,7 @@ RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] 
     "noise_theta": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
     "noise_dt": (lambda v: v > 0, _ANY, "be positive and finite"),
     "warmup_hold_steps": (lambda v: v >= 1, _ANY, "be >= 1 and finite"),
-    "preactivation_l2": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
     "guide_weight": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
-    "guide_filter_margin": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
 }
 """Numeric fields: (lower check, upper check, what the message says). NaN fails both."""
 CHOICES: dict[str, tuple[object, ...]] = {
@@ -146,21 +141,13 @@ class DDPGConfig:
     actor's action and the teacher's on every sampled state (DDPG from demonstrations,
     Nair et al. 2018, with the teacher asked on the learner's own states as DAgger does);
     0: no term."""
-    guide_decay_steps: int = 0
-    """Environment steps over which ``guide_weight`` falls linearly to 0; 0: it stays."""
     guide_filter: str = "q"
     """Where the imitation term applies: ``q``, only on states where the critic does not
-    rate the actor's action above the teacher's by more than ``guide_filter_margin``
-    (Nair et al.'s Q-filter: the actor may leave the teacher where it knows better);
+    rate the actor's action above the teacher's (Nair et al.'s Q-filter: the actor may
+    leave the teacher where it knows better);
     ``q_lower``, the same, but the actor may leave the teacher only for a lower action
     (for the intersection: to brake where the teacher goes, never to go where it brakes);
     or ``none``, on every state."""
-    guide_filter_margin: float = 0.0
-    """How far the Q-filter distrusts the critic: the actor leaves the teacher only where
-    Q(s, actor) exceeds Q(s, teacher) by more than this."""
-    preactivation_l2: float = 0.0
-    """Weight of the mean squared pre-tanh output in the actor loss: keeps the actor off
-    tanh's flat tails, where no gradient can bring a saturated action back."""
     sparse_input: bool | str = "auto"
     """First layers gather only non-zero inputs: True, False, or ``"auto"`` (large obs only)."""
     sparse_min_features: int = 256
@@ -191,12 +178,10 @@ class DDPGConfig:
             _require(
                 _is_int(value) and value > 0, f"{name} must be a positive integer, got {value!r}"
             )
-        for name in ("learning_starts", "guide_decay_steps"):
-            value = getattr(self, name)
-            _require(
-                _is_int(value) and value >= 0,
-                f"{name} must be a non-negative integer, got {value!r}",
-            )
+        _require(
+            _is_int(self.learning_starts) and self.learning_starts >= 0,
+            f"learning_starts must be a non-negative integer, got {self.learning_starts!r}",
+        )
         for name, (low, high, text) in RANGES.items():
             value = getattr(self, name)
             number = isinstance(value, (int, float)) and not isinstance(value, bool)
@@ -215,11 +200,6 @@ class DDPGConfig:
         _require(
             self.noise_theta * self.noise_dt < 2,
             "noise_theta * noise_dt must be < 2 for a stable OU process",
-        )
-        _require(
-            self.actor_update == "tanh" or self.preactivation_l2 == 0,
-            "preactivation_l2 keeps a tanh actor off its flat tails; with "
-            "actor_update=inverting_gradients leave it at 0",
         )
         _require(
             self.guide != "none" or self.guide_weight == 0,

@@ -31,7 +31,7 @@ from frl.agents.functional import (
     soft_update,
     td_target,
 )
-from frl.agents.guide import guide_weight_at, imitation_term
+from frl.agents.guide import imitation_term
 from frl.agents.learn import LearnCallback, learn
 from frl.agents.networks import Actor, ActorCritic, Critic, build_network, make_adam
 from frl.agents.observations import ObservationLayout
@@ -241,7 +241,7 @@ class DDPG:
                 preactivation = nets.actor.preactivation(batch.obs)
             actor_loss, q_policy = self._actor_loss(batch, preactivation)
             stats["actor_loss"] = -q_policy.detach().mean()
-            weight = guide_weight_at(cfg.guide_weight, cfg.guide_decay_steps, self.num_env_steps)
+            weight = cfg.guide_weight
             if weight > 0 and batch.guide_actions is not None:  # a guided agent's teacher
                 term, share = imitation_term(
                     cfg, nets.critic, batch, preactivation, q_policy, self._autocast
@@ -257,15 +257,12 @@ class DDPG:
 
     def _actor_loss(self, batch: Batch, preactivation: Tensor) -> tuple[Tensor, Tensor]:
         """From the actor's unbounded action ``p``: the loss, and Q at the action taken.
-        ``tanh``: -Q(s, tanh(p)) (and the pre-tanh penalty); else inverting gradients."""
+        ``tanh``: -Q(s, tanh(p)); else inverting gradients."""
         cfg, critic = self.config, self.networks.critic
         if cfg.actor_update == "tanh":
             with self._autocast():
                 q_policy = critic(batch.obs, torch.tanh(preactivation))
-            loss = -q_policy.mean()
-            if cfg.preactivation_l2 > 0:
-                loss = loss + cfg.preactivation_l2 * preactivation.square().mean()
-            return loss, q_policy
+            return -q_policy.mean(), q_policy
         action = preactivation.detach().clamp(-1.0, 1.0).requires_grad_(True)
         with self._autocast():
             q_policy = critic(batch.obs, action)

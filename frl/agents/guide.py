@@ -1,5 +1,5 @@
-"""Learning from a teacher: the imitation term of the actor's loss, its Q-filter and its
-schedule (:attr:`frl.agents.DDPGConfig.guide`).
+"""Learning from a teacher: the imitation term of the actor's loss and its Q-filter
+(:attr:`frl.agents.DDPGConfig.guide`).
 
 Tensor maths, tested against hand-computed numbers in tests/test_agent_guide.py. Actions
 are in the actor's normalised units, [-1, 1].
@@ -15,19 +15,10 @@ import torch
 from torch import Tensor
 
 
-def guide_weight_at(weight: float, decay_steps: int, step: int) -> float:
-    """The imitation weight after ``step`` environment steps: ``weight``, falling linearly
-    to 0 at ``decay_steps`` (0: no decay)."""
-    if decay_steps <= 0:
-        return weight
-    return weight * max(0.0, 1.0 - step / decay_steps)
-
-
-def q_filter(q_teacher: Tensor, q_actor: Tensor, margin: float) -> Tensor:
+def q_filter(q_teacher: Tensor, q_actor: Tensor) -> Tensor:
     """1.0 where the imitation term applies, 0.0 where the actor may leave the teacher:
-    where the critic rates the actor's action above the teacher's by more than ``margin``
-    (Nair et al. 2018's Q-filter for ``margin`` 0)."""
-    return (q_actor <= q_teacher + margin).float()
+    where the critic rates the actor's action above the teacher's (Nair et al. 2018)."""
+    return (q_actor <= q_teacher).float()
 
 
 def lower_only(mask: Tensor, actor_action: Tensor, teacher: Tensor) -> Tensor:
@@ -55,10 +46,10 @@ def imitation_term(
     config: Any, critic: Callable[[Any, Tensor], Tensor], batch: Any, preactivation: Tensor,
     q_actor: Tensor, autocast: Callable[[], AbstractContextManager[Any]],
 ) -> tuple[Tensor, Tensor]:  # fmt: skip
-    """The imitation term at full weight (the caller scales it: :func:`guide_weight_at`)
-    and the share of the batch it reaches: everywhere with ``guide_filter=none``, else
-    where the critic does not prefer the actor's action (``q_actor``) to the teacher's
-    (``batch.guide_actions``) by more than ``guide_filter_margin``, and for ``q_lower``
+    """The imitation term at full weight (the caller scales it by ``guide_weight``) and
+    the share of the batch it reaches: everywhere with ``guide_filter=none``, else where
+    the critic does not prefer the actor's action (``q_actor``) to the teacher's
+    (``batch.guide_actions``), and for ``q_lower``
     also wherever the actor would not brake harder than the teacher. The critic runs in
     ``autocast()``, the update's precision."""
     teacher = batch.guide_actions
@@ -66,7 +57,7 @@ def imitation_term(
     if config.guide_filter in ("q", "q_lower"):
         with torch.no_grad(), autocast():
             q_teacher = critic(batch.obs, teacher)
-        mask = q_filter(q_teacher, q_actor.detach(), config.guide_filter_margin)
+        mask = q_filter(q_teacher, q_actor.detach())
         if config.guide_filter == "q_lower":
             actor_action = preactivation.detach().float().clamp(-1.0, 1.0)
             mask = lower_only(mask, actor_action, teacher)

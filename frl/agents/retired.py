@@ -1,4 +1,5 @@
-"""Agent options that frl's studies measured, found not to help, and retired.
+"""Agent options that frl retired: measured by a study and found not to help, or never
+measured and used by no preset.
 
 A config or checkpoint may still name one at the value that switched it off: it loads
 as if the key were absent, so every run and checkpoint made before the retirement still
@@ -14,19 +15,22 @@ from dataclasses import dataclass
 from typing import Any
 
 RETIRING_COMMIT = "7ff57ca"
-"""The commit that removed the options below (``git show`` it to read their code)."""
+"""The commit that removed the first options below (``git show`` it to read their code)."""
 
 
 @dataclass(frozen=True)
 class RetiredOption:
     off: Any
     """The value that left the agent as it is without the option."""
-    study: str
-    """Where docs/studies.md gives what it measured."""
+    study: str | None
+    """Where docs/studies.md gives what it measured; None: no study measured it."""
+    commit: str = RETIRING_COMMIT
+    """The commit that removed it."""
 
 
 _DRIVE_WELL = '"Agents that drive well"'
 _LEVERS = '"The rule as a teacher, the task as an input, prioritised replay"'
+_UNMEASURED_COMMIT = "HEAD"
 
 RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "action_repeat": RetiredOption(1, _DRIVE_WELL),
@@ -42,6 +46,9 @@ RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "lap_alpha": RetiredOption(0.4, _LEVERS),
     "lap_min_priority": RetiredOption(1.0, _LEVERS),
     "guide_residual": RetiredOption(False, _LEVERS),
+    "preactivation_l2": RetiredOption(0.0, None, _UNMEASURED_COMMIT),
+    "guide_decay_steps": RetiredOption(0, None, _UNMEASURED_COMMIT),
+    "guide_filter_margin": RetiredOption(0.0, None, _UNMEASURED_COMMIT),
 }
 """Each retired key, with its off value and its study."""
 
@@ -53,10 +60,14 @@ class RetiredOptionError(ValueError):
 def retired_message(key: str, value: Any) -> str:
     """The one line that refuses ``key=value``."""
     option = RETIRED_OPTIONS[key]
+    why = (
+        "no study measured it and no preset used it"
+        if option.study is None
+        else f"docs/studies.md, {option.study}, measured it as not helping"
+    )
     return (
-        f"agent.{key}={value!r} was retired: docs/studies.md, {option.study}, measured it "
-        f"as not helping, and commit {RETIRING_COMMIT} removed it; only {option.off!r} "
-        "(off) still loads"
+        f"agent.{key}={value!r} was retired: {why}, and commit {option.commit} removed it; "
+        f"only {option.off!r} (off) still loads"
     )
 
 
