@@ -30,7 +30,7 @@ class RetiredOption:
 
 _DRIVE_WELL = '"Agents that drive well"'
 _LEVERS = '"The rule as a teacher, the task as an input, prioritised replay"'
-_UNMEASURED_COMMIT = "HEAD"
+_UNMEASURED_COMMIT = "bbf4ecc"
 
 RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "action_repeat": RetiredOption(1, _DRIVE_WELL),
