@@ -14,6 +14,9 @@ from frl.federation import ProcessClientPool, VehicleClient, fedavg
 from frl.frames import decode_frame, encode_frame
 from frl.vehicle_host import PARAMETERS_PREFIX
 
+# One xdist worker runs this module: its tests share one vehicle (a module fixture).
+pytestmark = pytest.mark.xdist_group("client")
+
 
 @pytest.fixture(scope="module")
 def client():

@@ -21,6 +21,9 @@ from frl.flower.launch import TOKEN_VAR
 from frl.train import train
 from frl.train_config import ConfigError, validate
 
+# One xdist worker runs this module and test_launchers.py: both start local Ray clusters.
+pytestmark = pytest.mark.xdist_group("ray-and-flower")
+
 TWO_ROUNDS = ["total_steps=80", "interval=40", "eval_episodes=0"]
 FLOWER = ["federation.backend=flower"]
 

@@ -18,6 +18,9 @@ from frl.launchers import cores_per_job, launcher_overrides, require_launcher
 from frl.train import override_error
 from frl.train_config import register_configs
 
+# One xdist worker runs this module and test_flower_backend.py: both start local Ray clusters.
+pytestmark = pytest.mark.xdist_group("ray-and-flower")
+
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -22,6 +22,9 @@ from frl.report.stats import Estimate
 from frl.reproduce import ExportRun, export_finished, export_if_stale
 from frl.reproduce import main as reproduce_main
 
+# One xdist worker runs this module: its tests share one results tree (a module fixture).
+pytestmark = pytest.mark.xdist_group("report")
+
 SETTINGS = CurveSettings(episode_window=2, step_window=3, threshold=6.0)
 T2, T1 = 4.302653, 12.706205  # t(0.975, 2), t(0.975, 1)
 

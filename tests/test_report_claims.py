@@ -24,6 +24,9 @@ from frl.report.measures import paired
 from frl.report.runs import load_run
 from frl.report.stats import Estimate
 
+# One xdist worker runs this module: its tests share one results tree (a module fixture).
+pytestmark = pytest.mark.xdist_group("report-claims")
+
 SETTINGS = CurveSettings(episode_window=2, step_window=3, threshold=6.0)
 T2 = 4.302653  # t(0.975, 2)
 

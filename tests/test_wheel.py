@@ -33,7 +33,8 @@ TINY_RUN = [
     "progress=false",
 ]
 
-pytestmark = pytest.mark.slow
+# One xdist worker runs this module: its tests share one installed wheel (a module fixture).
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("wheel")]
 
 
 def _run(command: list[str], cwd: Path, env: dict[str, str], timeout: float = 300) -> str:
