@@ -1,6 +1,8 @@
-"""Worker processes: one spawned process per client, each hosting one object, called over a pipe.
+"""Worker processes: one process per client, each hosting one object, called over a pipe.
 
-libsumo holds one simulation per process, so every vehicle lives in its own process.
+libsumo holds one simulation per process, so every vehicle lives in its own process. A
+worker is forked from a server that has imported torch and frl once
+(:func:`worker_context`), so starting one costs a fork, not a fresh interpreter's imports.
 The pool is a small remote-call layer: the parent asks worker ``i`` to run
 ``method(*args)`` on its object and waits for the results of all workers at once.
 
@@ -17,9 +19,9 @@ Failure handling, the reason this module exists:
 - A call running past ``timeout_s`` raises :class:`ClientFailure` too.
 - Leaving the ``with`` block, by return, exception or Ctrl-C, stops every worker:
   a polite ``close`` message when all is well, otherwise SIGTERM, then SIGKILL.
-  Workers ignore SIGINT (the parent handles Ctrl-C), get SIGTERM from Linux when the
-  parent dies (``PR_SET_PDEATHSIG``) and exit when the parent's end of the pipe closes,
-  so a killed parent leaves no orphans behind either.
+  Workers ignore SIGINT (the parent handles Ctrl-C), SIGTERM themselves when the
+  parent dies (a thread watches its sentinel) and exit when the parent's end of the pipe
+  closes, so a killed parent leaves no orphans behind either.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import pickle
 import signal
 import subprocess
 import sys
+import threading
 import time
 import traceback
 import types
@@ -85,13 +88,13 @@ def threads_per_worker(num_workers: int, cores: int | None = None) -> int:
 
 
 Stoppable = mp.process.BaseProcess | subprocess.Popen[Any]
-"""A spawned worker, or a command started with ``start_new_session=True``."""
+"""A worker process, or a command started with ``start_new_session=True``."""
 
 
 def stop_processes(processes: Sequence[Stoppable], grace_s: float = 10.0) -> None:
     """SIGTERM every process, then SIGKILL whatever still runs after ``grace_s``.
 
-    The one way frl stops what it started: worker and vehicle processes (spawned with
+    The one way frl stops what it started: worker and vehicle processes (started with
     ``multiprocessing``) get the signal themselves; commands (Flower's SuperLink and
     SuperNodes, started in their own session) get it for their whole process group, so
     their children go too.
@@ -140,10 +143,20 @@ def _receive(conn: Connection) -> Any:
 
 
 def _exit_with_parent() -> None:
-    """Ask Linux to SIGTERM this worker when the coordinator dies, even by SIGKILL.
+    """SIGTERM this worker when the coordinator dies, even by SIGKILL.
 
-    Without it a worker would notice only at its next message, up to a round later.
+    Without it a worker would notice only at its next message, up to a round later. A
+    thread waits on the coordinator's sentinel (closed when it dies, whoever forked the
+    worker); on Linux ``PR_SET_PDEATHSIG`` also covers a worker spawned by the coordinator.
     """
+    coordinator = mp.parent_process()
+    if coordinator is not None:
+
+        def stop_when_gone() -> None:
+            wait([coordinator.sentinel])
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        threading.Thread(target=stop_when_gone, name="frl-parent-watch", daemon=True).start()
     if not sys.platform.startswith("linux"):
         return
     import ctypes
@@ -151,8 +164,6 @@ def _exit_with_parent() -> None:
     with contextlib.suppress(OSError, AttributeError):
         pr_set_pdeathsig = 1
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
-    if os.getppid() == 1:  # the parent died before prctl took effect
-        sys.exit(143)
 
 
 # glibc mallopt parameters (malloc.h).
@@ -187,8 +198,29 @@ def retain_freed_memory() -> bool:
     return bool(ok)
 
 
+PRELOADED = ("frl.federation.client",)
+"""What the fork server imports once for every worker: torch, the agent, the environment."""
+
+
+def worker_context() -> Any:
+    """Where worker processes come from: a fork server that imported :data:`PRELOADED`
+    once, or plain ``spawn`` where there is none (not on Windows).
+
+    A spawned interpreter imports torch and frl anew, about 2 s of CPU per
+    worker, which a run with many vehicles, a sweep or the test suite pays again and
+    again; a fork of the server starts with them imported. The server runs no torch
+    operation and starts no simulation, so what a child inherits is only the imports: its
+    threads, seeds and SUMO it sets up itself (:func:`prepare_worker_process`).
+    """
+    if "forkserver" not in mp.get_all_start_methods():
+        return mp.get_context("spawn")
+    context = mp.get_context("forkserver")
+    context.set_forkserver_preload(list(PRELOADED))
+    return context
+
+
 def prepare_worker_process(num_threads: int) -> None:
-    """Set up a freshly spawned client process: threads, memory reuse, signals, death
+    """Set up a freshly started client process: threads, memory reuse, signals, death
     with its parent.
 
     The parent handles Ctrl-C and stops its workers; SIGTERM unwinds so that ``finally``
@@ -322,7 +354,7 @@ class WorkerPool:
 
     def start(self) -> None:
         """Spawn the workers and wait until each has built its object."""
-        context = mp.get_context("spawn")
+        context = worker_context()
         try:
             with _caller_script_hidden():
                 self._spawn(context)
