@@ -18,6 +18,9 @@ from frl.launchers import cores_per_job, launcher_overrides, require_launcher
 from frl.train import override_error
 from frl.train_config import register_configs
 
+# One xdist worker runs this module and test_flower_backend.py: both start local Ray clusters.
+pytestmark = pytest.mark.xdist_group("ray-and-flower")
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -56,10 +59,7 @@ def test_a_sweep_for_a_launcher_leaves_cores_and_device_to_the_machines_that_run
     ("launcher", "plugin"),
     [
         ("submitit_local", "hydra_plugins.hydra_submitit_launcher"),
-        # One xdist worker runs every test that starts a local Ray cluster.
-        pytest.param(
-            "ray", "hydra_plugins.hydra_ray_launcher", marks=pytest.mark.xdist_group("ray")
-        ),
+        ("ray", "hydra_plugins.hydra_ray_launcher"),
     ],
 )
 def test_a_two_job_sweep_through_a_launcher_finishes_and_compares(launcher, plugin, tmp_path):
