@@ -146,24 +146,19 @@ def _exit_with_parent() -> None:
     """SIGTERM this worker when the coordinator dies, even by SIGKILL.
 
     Without it a worker would notice only at its next message, up to a round later. A
-    thread waits on the coordinator's sentinel (closed when it dies, whoever forked the
-    worker); on Linux ``PR_SET_PDEATHSIG`` also covers a worker spawned by the coordinator.
+    thread waits on the coordinator's sentinel, which closes when it dies. (Linux's
+    ``PR_SET_PDEATHSIG`` would watch the fork server instead, the worker's parent, which
+    outlives it.)
     """
     coordinator = mp.parent_process()
-    if coordinator is not None:
-
-        def stop_when_gone() -> None:
-            wait([coordinator.sentinel])
-            os.kill(os.getpid(), signal.SIGTERM)
-
-        threading.Thread(target=stop_when_gone, name="frl-parent-watch", daemon=True).start()
-    if not sys.platform.startswith("linux"):
+    if coordinator is None:
         return
-    import ctypes
 
-    with contextlib.suppress(OSError, AttributeError):
-        pr_set_pdeathsig = 1
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+    def stop_when_gone() -> None:
+        wait([coordinator.sentinel])
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=stop_when_gone, name="frl-parent-watch", daemon=True).start()
 
 
 # glibc mallopt parameters (malloc.h).

@@ -254,8 +254,8 @@ class LocalFederation:
                 start_new_session=True,
             )
         _wait_for_port(self.port, self._superlink, self.start_timeout_s, "the SuperLink")
-        # One at a time, from this thread: a vehicle process stops when the thread that
-        # started it ends (PR_SET_PDEATHSIG, frl.federation.workers).
+        # One at a time, from this thread: starting a vehicle process swaps sys.modules'
+        # __main__ for a moment (frl.federation.workers), which threads would race on.
         for index in range(self.num_vehicles):
             node = VehicleNode(
                 superlink=self.address,
