@@ -603,7 +603,7 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     saved = dict(saved)
     if isinstance(saved.get("agent"), dict):
         try:
-            saved["agent"] = {**FIELDS_ADDED_LATER, **without_retired(saved["agent"])}
+            saved["agent"] = without_retired({**FIELDS_ADDED_LATER, **saved["agent"]})
         except RetiredOptionError as error:
             raise ConfigError(str(error)) from None
     env = dict(saved.get("env") or {})

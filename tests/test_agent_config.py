@@ -31,7 +31,7 @@ def test_defaults_follow_table_ii() -> None:
         ({"hidden_sizes": ()}, "hidden_sizes"),
         ({"hidden_sizes": (64, 0)}, "hidden_sizes"),
         ({"learning_starts": -1}, "learning_starts"),
-        ({"gradient_steps": 0}, "gradient_steps"),
+        ({"train_freq": 0}, "train_freq"),
         ({"train_freq": 1.5}, "train_freq"),
         ({"noise_sigma": -0.1}, "noise_sigma"),
         ({"noise_dt": 0.0}, "noise_dt"),

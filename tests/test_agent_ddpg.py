@@ -76,11 +76,11 @@ def test_update_is_empty_before_learning_starts_then_counts() -> None:
     assert agent.num_env_steps == 25 and agent.num_updates == 6
 
 
-def test_gradient_steps_and_train_freq() -> None:
-    config = DDPGConfig(**{**SMALL.to_dict(), "train_freq": 2, "gradient_steps": 3})
+def test_train_freq_updates_every_nth_step() -> None:
+    config = DDPGConfig(**{**SMALL.to_dict(), "train_freq": 2})
     agent = DDPG(GRID, ACCEL, config)
     run(agent, 26)
-    assert agent.num_updates == 3 * 4  # env steps 20, 22, 24, 26
+    assert agent.num_updates == 4  # env steps 20, 22, 24, 26
 
 
 @pytest.mark.parametrize("terminated", [False, True])

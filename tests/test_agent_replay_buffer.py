@@ -46,7 +46,7 @@ def test_batch_shapes_and_dtypes_dense() -> None:
     assert batch.actions.shape == (6, 2) and batch.rewards.shape == (6,)
     assert batch.terminated.shape == (6,)
     assert all(t.dtype == torch.float32 for t in batch if t is not None)
-    assert batch.guide_actions is None and batch.next_guide_actions is None  # no teacher
+    assert batch.guide_actions is None  # no teacher
 
 
 def test_sample_only_from_filled_slots_and_empty_raises() -> None:
@@ -164,7 +164,7 @@ def test_state_dict_round_trip_resumes_identical_sampling(guided: bool) -> None:
     options = {"sparse": True, "sparse_width": 8, "guided": guided}
     buffer = ReplayBuffer(16, GRID, 2, np.random.default_rng(5), **options)
     for _ in range(20):
-        teacher = (rng.uniform(-1, 1, 2), rng.uniform(-1, 1, 2)) if guided else ()
+        teacher = (rng.uniform(-1, 1, 2),) if guided else ()
         buffer.add(
             sparse_grid(rng, 2), rng.uniform(-1, 1, 2), 1.0, sparse_grid(rng, 5), True, 1, *teacher
         )

@@ -33,7 +33,12 @@ ON = {
     "preactivation_l2": 0.1,
     "guide_decay_steps": 5000,
     "guide_filter_margin": 0.25,
+    "guide_filter": "q",
+    "gradient_steps": 4,
+    "random_warmup": False,
 }
+CONTEXT = {"guide_filter": {"guide": "gap_acceptance", "guide_weight": 1.0}}
+"""Other options under which a retired key's on value did something."""
 
 
 def test_every_retired_option_has_an_on_value_here_and_is_no_field_any_more():
@@ -47,7 +52,7 @@ def test_a_config_at_the_off_value_loads_and_any_other_value_is_refused(key):
     off = RETIRED_OPTIONS[key].off
     assert DDPGConfig.from_dict({key: off}) == DDPGConfig.from_dict({})
     with pytest.raises(RetiredOptionError) as refused:
-        DDPGConfig.from_dict({key: ON[key]})
+        DDPGConfig.from_dict({key: ON[key], **CONTEXT.get(key, {})})
     message = str(refused.value)
     assert "\n" not in message and f"agent.{key}=" in message
     option = RETIRED_OPTIONS[key]
@@ -84,3 +89,22 @@ def test_a_command_line_override_at_the_off_value_is_dropped_and_any_other_refus
     assert without_retired_overrides(argv) == ["seed=1", "agent.tau=0.01"]
     with pytest.raises(RetiredOptionError, match="policy_delay"):
         without_retired_overrides(["agent.policy_delay=2"])
+
+
+def test_a_q_filter_without_an_imitation_term_did_nothing_and_loads():
+    # Every unguided agent saved before the retirement carries the old default filter "q".
+    assert DDPGConfig.from_dict({"guide_filter": "q", "guide_weight": 0.0}) == DDPGConfig.from_dict(
+        {}
+    )
+    unguided = migrate_saved_config({"agent": {"guide_filter": "q_lower", "guide_weight": 0}})
+    assert "guide_filter" not in unguided["agent"]
+    guided = {"guide": "gap_acceptance", "guide_weight": 1.0}
+    assert DDPGConfig.from_dict({**guided, "guide_filter": "none"}).guide_weight == 1.0
+    with pytest.raises(RetiredOptionError, match=r"agent\.guide_filter='q' was retired"):
+        DDPGConfig.from_dict({**guided, "guide_filter": "q"})
+    # On the command line there is no term to read: only the off value is dropped.
+    from frl.train import without_retired_overrides
+
+    assert without_retired_overrides(["agent.guide_filter=none"]) == []
+    with pytest.raises(RetiredOptionError, match="guide_filter"):
+        without_retired_overrides(["agent.guide_filter=q"])

@@ -14,7 +14,6 @@ NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
 ENCODERS: tuple[str, ...] = ("flat", "vehicles")
 ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
 GUIDES: tuple[str, ...] = ("none", "gap_acceptance")
-GUIDE_FILTERS: tuple[str, ...] = ("q", "q_lower", "none")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
@@ -25,7 +24,6 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "actor_update": "tanh",
     "guide": "none",
     "guide_weight": 0.0,
-    "guide_filter": "q",
 }
 """Fields that checkpoints and run configs written before them lack, with the values
 those agents ran with (which are not today's defaults)."""
@@ -41,7 +39,7 @@ def _is_int(value: object) -> bool:
 
 
 POSITIVE_INTS = (
-    "buffer_size", "n_step", "batch_size", "train_freq", "gradient_steps",
+    "buffer_size", "n_step", "batch_size", "train_freq",
     "sparse_min_features", "sparse_capacity", "encoder_width",
 )  # fmt: skip
 _ANY: Callable[[float], bool] = math.isfinite
@@ -61,7 +59,6 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "noise": NOISE_KINDS,
     "actor_update": ACTOR_UPDATES,
     "guide": GUIDES,
-    "guide_filter": GUIDE_FILTERS,
     "encoder": ENCODERS,
     "precision": PRECISIONS,
     "sparse_input": (True, False, "auto"),
@@ -101,9 +98,7 @@ class DDPGConfig:
     critic_lr: float = 1e-4
     """Adam learning rate of the critic (Table II)."""
     train_freq: int = 1
-    """Run ``gradient_steps`` updates every ``train_freq`` environment steps."""
-    gradient_steps: int = 1
-    """Gradient steps per update call that is due (one per env step, as in Table II's SB3)."""
+    """Environment steps per update (1: one update per step, Table II's SB3)."""
     noise: str = "ou"
     """Exploration noise: ``"ou"`` (Ornstein-Uhlenbeck, Table II) or ``"gaussian"``."""
     noise_sigma: float = 0.3
@@ -112,8 +107,6 @@ class DDPGConfig:
     """OU mean-reversion rate (keras-rl lineage and SB3 default: 0.15)."""
     noise_dt: float = 1e-2
     """OU time step (keras-rl and SB3 default: 1e-2)."""
-    random_warmup: bool = True
-    """Act uniformly at random before ``learning_starts`` when exploring (SB3 and CleanRL do)."""
     warmup_hold_steps: float = 20.0
     """Mean steps each uniform warm-up action is held (geometric durations); 1: a new
     action every step (Table II's SB3). Held actions drive long stretches of braking and
@@ -139,15 +132,8 @@ class DDPGConfig:
     guide_weight: float = 0.0
     """Weight of the imitation term in the actor's loss, the squared distance between the
     actor's action and the teacher's on every sampled state (DDPG from demonstrations,
-    Nair et al. 2018, with the teacher asked on the learner's own states as DAgger does);
-    0: no term."""
-    guide_filter: str = "q"
-    """Where the imitation term applies: ``q``, only on states where the critic does not
-    rate the actor's action above the teacher's (Nair et al.'s Q-filter: the actor may
-    leave the teacher where it knows better);
-    ``q_lower``, the same, but the actor may leave the teacher only for a lower action
-    (for the intersection: to brake where the teacher goes, never to go where it brakes);
-    or ``none``, on every state."""
+    Nair et al. 2018, with the teacher asked on the learner's own states as DAgger does,
+    and no Q-filter: filtered terms tested lower); 0: no term."""
     sparse_input: bool | str = "auto"
     """First layers gather only non-zero inputs: True, False, or ``"auto"`` (large obs only)."""
     sparse_min_features: int = 256
@@ -231,7 +217,7 @@ class DDPGConfig:
         :data:`FIELDS_ADDED_LATER` that ``data`` lacks take the values agents had before;
         retired keys (:mod:`frl.agents.retired`) at their off values are dropped, and at
         any other value raise :class:`frl.agents.retired.RetiredOptionError`."""
-        data = {**FIELDS_ADDED_LATER, **without_retired(data)}
+        data = without_retired({**FIELDS_ADDED_LATER, **data})
         if "hidden_sizes" in data:
             data["hidden_sizes"] = tuple(data["hidden_sizes"])
         return cls(**data)

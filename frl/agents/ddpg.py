@@ -31,7 +31,7 @@ from frl.agents.functional import (
     soft_update,
     td_target,
 )
-from frl.agents.guide import imitation_term
+from frl.agents.guide import imitation_loss
 from frl.agents.learn import LearnCallback, learn
 from frl.agents.networks import Actor, ActorCritic, Critic, build_network, make_adam
 from frl.agents.observations import ObservationLayout
@@ -201,9 +201,8 @@ class DDPG:
 
     # ---------------------------------------------------------------- learning
     def update(self) -> dict[str, float]:
-        """``gradient_steps`` updates if due (``learning_starts`` transitions observed, a
-        batch in the buffer, ``num_env_steps`` a multiple of ``train_freq``); their last
-        losses, or ``{}``."""
+        """One update if due (``learning_starts`` transitions observed, a batch in the
+        buffer, ``num_env_steps`` a multiple of ``train_freq``): its losses, or ``{}``."""
         cfg = self.config
         if (
             self.num_env_steps < cfg.learning_starts
@@ -211,10 +210,9 @@ class DDPG:
             or self.num_env_steps % cfg.train_freq != 0
         ):
             return {}
-        for _ in range(cfg.gradient_steps):
-            slots = self.buffer.sample_slots(cfg.batch_size)
-            stats = self._train_step(self.buffer.gather(slots, self.sparse, self.device))
-            self.num_updates += 1
+        slots = self.buffer.sample_slots(cfg.batch_size)
+        stats = self._train_step(self.buffer.gather(slots, self.sparse, self.device))
+        self.num_updates += 1
         return {name: value.item() for name, value in stats.items()}
 
     def _train_step(self, batch: Batch) -> dict[str, Tensor]:
@@ -241,13 +239,10 @@ class DDPG:
                 preactivation = nets.actor.preactivation(batch.obs)
             actor_loss, q_policy = self._actor_loss(batch, preactivation)
             stats["actor_loss"] = -q_policy.detach().mean()
-            weight = cfg.guide_weight
-            if weight > 0 and batch.guide_actions is not None:  # a guided agent's teacher
-                term, share = imitation_term(
-                    cfg, nets.critic, batch, preactivation, q_policy, self._autocast
-                )
-                actor_loss = actor_loss + weight * term
-                stats["imitation_loss"], stats["guide_share"] = (weight * term).detach(), share
+            if cfg.guide_weight > 0 and batch.guide_actions is not None:  # a teacher's pull
+                imitation = cfg.guide_weight * imitation_loss(preactivation, batch.guide_actions)
+                actor_loss = actor_loss + imitation
+                stats["imitation_loss"] = imitation.detach()
             self._descend(self.actor_optimizer, actor_loss)
         finally:
             nets.critic.requires_grad_(True)

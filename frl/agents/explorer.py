@@ -18,10 +18,10 @@ from frl.agents.noise import make_noise
 class Explorer:
     """What an exploring agent does to its policy's action.
 
-    Before ``learning_starts`` transitions (``DDPGConfig.random_warmup``) it drives uniform
-    actions, each held for a geometric number of steps of mean ``warmup_hold_steps``, as
-    SB3 and CleanRL act at random then, so the first updates see diverse actions; after it,
-    the policy's action plus the noise, clipped to [-1, 1].
+    Before ``learning_starts`` transitions it drives uniform actions, each held for a
+    geometric number of steps of mean ``warmup_hold_steps``, as SB3 and CleanRL act at
+    random then, so the first updates see diverse actions; after it, the policy's action
+    plus the noise, clipped to [-1, 1].
     """
 
     def __init__(
@@ -47,7 +47,7 @@ class Explorer:
 
     def in_warmup(self, num_env_steps: int) -> bool:
         """Whether the next exploring action is a warm-up one."""
-        return self.config.random_warmup and num_env_steps < self.config.learning_starts
+        return num_env_steps < self.config.learning_starts
 
     def warmup_action(self) -> np.ndarray:
         """A uniform action, held for a geometric number of steps (mean

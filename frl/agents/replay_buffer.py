@@ -39,8 +39,6 @@ class Batch(NamedTuple):
     """Steps from ``obs`` to ``next_obs`` (n-step transitions; 1 for one-step ones)."""
     guide_actions: Tensor | None = None
     """A teacher's actions at ``obs`` (normalised), where the buffer stores them."""
-    next_guide_actions: Tensor | None = None
-    """The teacher's actions at ``next_obs``."""
 
 
 def committed_when_written(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
@@ -150,8 +148,8 @@ class ReplayBuffer:
         rng: the generator that draws sample indices (never the global RNG).
         sparse: store observations compactly (exact); see the module docstring.
         sparse_width: initial non-zeros per stored observation (grows on demand).
-        guided: store a teacher's actions at ``obs`` and ``next_obs`` with every
-            transition (:attr:`frl.agents.DDPGConfig.guide`).
+        guided: store a teacher's action at ``obs`` with every transition
+            (:attr:`frl.agents.DDPGConfig.guide`).
     """
 
     def __init__(
@@ -183,9 +181,9 @@ class ReplayBuffer:
         self.terminated = committed_when_written((capacity,), np.float32)
         self.horizons = np.ones(capacity, dtype=np.float32)
         self.guided = guided
-        guide_shape = (capacity if guided else 0, action_dim)
-        self.guide_actions = committed_when_written(guide_shape, np.float32)
-        self.next_guide_actions = committed_when_written(guide_shape, np.float32)
+        self.guide_actions = committed_when_written(
+            (capacity if guided else 0, action_dim), np.float32
+        )
         self.pos = 0
         self.size = 0
 
@@ -196,9 +194,8 @@ class ReplayBuffer:
     def nbytes(self) -> int:
         """Bytes held by the storage arrays (allocated for the full capacity)."""
         obs_bytes = self._obs.nbytes + self._next_obs.nbytes
-        guide_bytes = self.guide_actions.nbytes + self.next_guide_actions.nbytes
         scalars = self.actions.nbytes + self.rewards.nbytes + self.terminated.nbytes
-        return obs_bytes + scalars + guide_bytes
+        return obs_bytes + scalars + self.guide_actions.nbytes
 
     def add(
         self,
@@ -209,11 +206,10 @@ class ReplayBuffer:
         terminated: bool,
         horizon: int = 1,
         guide_action: np.ndarray | None = None,
-        next_guide_action: np.ndarray | None = None,
     ) -> None:
         """Store one transition; ``terminated`` must exclude time-limit truncation.
         ``horizon``: steps from ``obs`` to ``next_obs`` (an n-step transition's k).
-        A ``guided`` buffer needs the teacher's actions at ``obs`` and ``next_obs``."""
+        A ``guided`` buffer needs the teacher's action at ``obs``."""
         flat_obs = np.asarray(obs, dtype=np.float32).reshape(-1)
         flat_next = np.asarray(next_obs, dtype=np.float32).reshape(-1)
         if flat_obs.size != self.num_features or flat_next.size != self.num_features:
@@ -233,10 +229,9 @@ class ReplayBuffer:
         self.terminated[slot] = float(terminated)
         self.horizons[slot] = horizon
         if self.guided:
-            if guide_action is None or next_guide_action is None:
-                raise ValueError("a guided buffer needs the teacher's actions of every transition")
+            if guide_action is None:
+                raise ValueError("a guided buffer needs the teacher's action of every transition")
             self.guide_actions[slot] = np.asarray(guide_action, np.float32).reshape(-1)
-            self.next_guide_actions[slot] = np.asarray(next_guide_action, np.float32).reshape(-1)
         self.pos = (slot + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
@@ -275,7 +270,6 @@ class ReplayBuffer:
             torch.from_numpy(self.terminated[slots]),
             torch.from_numpy(self.horizons[slots]),
             torch.from_numpy(self.guide_actions[slots]) if self.guided else None,
-            torch.from_numpy(self.next_guide_actions[slots]) if self.guided else None,
         )
         if torch.device(device).type == "cpu":
             return batch
@@ -295,7 +289,6 @@ class ReplayBuffer:
         }
         if self.guided:
             state["guide_actions"] = torch.from_numpy(self.guide_actions[:n].copy())
-            state["next_guide_actions"] = torch.from_numpy(self.next_guide_actions[:n].copy())
         for name in ("_obs", "_next_obs"):
             store = getattr(self, name)
             if self.sparse:
@@ -332,6 +325,5 @@ class ReplayBuffer:
         self.horizons[:n] = state["horizons"].numpy() if "horizons" in state else 1.0
         if self.guided:
             self.guide_actions[:n] = state["guide_actions"].numpy()
-            self.next_guide_actions[:n] = state["next_guide_actions"].numpy()
         self.pos, self.size = int(state["pos"]), n
         set_generator_state(self.rng, state["rng"])

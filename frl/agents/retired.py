@@ -26,11 +26,15 @@ class RetiredOption:
     """Where docs/studies.md gives what it measured; None: no study measured it."""
     commit: str = RETIRING_COMMIT
     """The commit that removed it."""
+    idle_when: tuple[str, Any] | None = None
+    """``(key, value)``: where the same options set ``key`` to ``value`` the option did
+    nothing at any value (a Q-filter with no imitation term to filter), so it loads."""
 
 
 _DRIVE_WELL = '"Agents that drive well"'
 _LEVERS = '"The rule as a teacher, the task as an input, prioritised replay"'
 _UNMEASURED_COMMIT = "bbf4ecc"
+_THIRD_COMMIT = "HEAD"
 
 RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "action_repeat": RetiredOption(1, _DRIVE_WELL),
@@ -49,6 +53,9 @@ RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "preactivation_l2": RetiredOption(0.0, None, _UNMEASURED_COMMIT),
     "guide_decay_steps": RetiredOption(0, None, _UNMEASURED_COMMIT),
     "guide_filter_margin": RetiredOption(0.0, None, _UNMEASURED_COMMIT),
+    "guide_filter": RetiredOption("none", _LEVERS, _THIRD_COMMIT, ("guide_weight", 0)),
+    "gradient_steps": RetiredOption(1, _LEVERS, _THIRD_COMMIT),
+    "random_warmup": RetiredOption(True, None, _THIRD_COMMIT),
 }
 """Each retired key, with its off value and its study."""
 
@@ -89,6 +96,9 @@ def without_retired(options: Mapping[str, Any]) -> dict[str, Any]:
     for key, value in options.items():
         if key not in RETIRED_OPTIONS:
             kept[key] = value
-        elif not is_off(key, value):
+            continue
+        idle_when = RETIRED_OPTIONS[key].idle_when
+        idle = idle_when is not None and options.get(idle_when[0], None) == idle_when[1]
+        if not idle and not is_off(key, value):
             raise RetiredOptionError(retired_message(key, value))
     return kept

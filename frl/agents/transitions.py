@@ -2,8 +2,8 @@
 
 Each step the agent observes goes through the n-step accumulator
 (:class:`frl.agents.n_step.NStepAccumulator`), which hands back the transitions that are
-complete; a guided agent's teacher labels each with its actions at both ends before it
-enters the replay buffer.
+complete; a guided agent's teacher labels each with its action at the first state before
+it enters the replay buffer.
 """
 
 from __future__ import annotations
@@ -50,8 +50,8 @@ class TransitionWriter:
         buffer: where complete transitions go.
         n_step: steps summed in each transition (1: one-step transitions).
         gamma: the discount inside an n-step reward.
-        teacher: labels every transition with the teacher's actions at ``obs`` and
-            ``next_obs`` (a guided agent); None: no labels.
+        teacher: labels every transition with the teacher's action at ``obs`` (a guided
+            agent); None: no labels.
     """
 
     def __init__(
@@ -81,7 +81,5 @@ class TransitionWriter:
         self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
         terminated: bool, horizon: int,
     ) -> None:  # fmt: skip
-        labels: tuple[np.ndarray, ...] = ()
-        if self.teacher is not None:
-            labels = (self.teacher(obs), self.teacher(next_obs))
-        self.buffer.add(obs, action, reward, next_obs, terminated, horizon, *labels)
+        label = None if self.teacher is None else self.teacher(obs)
+        self.buffer.add(obs, action, reward, next_obs, terminated, horizon, label)

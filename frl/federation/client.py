@@ -29,13 +29,10 @@ from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
 from frl.fileio import write_json_atomic
 from frl.policies import install_guide
 
-LOSS_NAMES: tuple[str, ...] = (
-    "critic_loss", "actor_loss", "q_mean", "td_error", "imitation_loss", "guide_share",
-)  # fmt: skip
+LOSS_NAMES: tuple[str, ...] = ("critic_loss", "actor_loss", "q_mean", "td_error", "imitation_loss")
 """Per-step learning statistics a client reports (NaN on steps without an update);
 ``td_error`` is the batch's mean |Q(s, a) - (r + gamma Q'(s', mu'(s')))|; a guided agent's
-``imitation_loss`` (weighted) and ``guide_share``, the share of the batch the imitation
-term reached past the Q-filter."""
+``imitation_loss`` (weighted)."""
 
 ACTION_SERIES: tuple[str, ...] = ("executed", "policy")
 """Per-step actions a client reports: what it drove (noise and warm-up included), and
