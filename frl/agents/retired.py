@@ -34,7 +34,7 @@ class RetiredOption:
 _DRIVE_WELL = '"Agents that drive well"'
 _LEVERS = '"The rule as a teacher, the task as an input, prioritised replay"'
 _UNMEASURED_COMMIT = "bbf4ecc"
-_THIRD_COMMIT = "HEAD"
+_THIRD_COMMIT = "c76bc5e"
 
 RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "action_repeat": RetiredOption(1, _DRIVE_WELL),
