@@ -12,7 +12,6 @@ from typing import Any
 import numpy as np
 import torch
 from gymnasium import spaces
-from torch import Tensor
 
 from frl.agents.config import DDPGConfig
 from frl.agents.noise import generator_state, set_generator_state
@@ -109,16 +108,18 @@ def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:
             another config, other spaces or other network shapes.
     """
     data = read_checkpoint(path)
-    networks = agent.networks.networks()
     try:
         _check_compatible(agent, data, path)
-        for name, net in networks.items():
-            _check_state_dict(data["networks"][name], net.state_dict(), name)
-    except (KeyError, TypeError, AttributeError) as error:
-        raise CheckpointError(f"{path}: malformed checkpoint ({error!r})") from error
+        networks = {
+            f"{name}.{key}": value
+            for name, saved in data["networks"].items()
+            for key, value in saved.items()
+        }
+        agent.networks.check_state(networks)
+    except (KeyError, TypeError, AttributeError, ValueError) as error:
+        raise CheckpointError(f"{path}: malformed checkpoint ({error})") from error
     try:
-        for name, net in networks.items():
-            net.load_state_dict(data["networks"][name])
+        agent.networks.load_state_dict(networks)
         agent.actor_optimizer.load_state_dict(data["optimizers"]["actor"])
         agent.critic_optimizer.load_state_dict(data["optimizers"]["critic"])
         explorer = agent.explorer
@@ -188,14 +189,6 @@ def _check_compatible(agent: Any, data: dict[str, Any], path: str | os.PathLike[
     for key in ("action_low", "action_high"):
         if not torch.equal(spaces_saved[key], spaces_mine[key]):
             raise CheckpointError(f"checkpoint {key} differs from this agent's action space")
-
-
-def _check_state_dict(saved: Any, current: dict[str, Tensor], prefix: str) -> None:
-    if not isinstance(saved, dict) or set(saved) != set(current):
-        raise CheckpointError(f"checkpoint {prefix} parameters do not match this agent's")
-    for key, tensor in current.items():
-        if not isinstance(saved[key], Tensor) or saved[key].shape != tensor.shape:
-            raise CheckpointError(f"checkpoint {prefix}.{key} has the wrong shape")
 
 
 def spaces_of(

@@ -163,19 +163,24 @@ class ActorCritic(nn.Module):
             ValueError: a missing or unexpected key, or a shape mismatch (naming the key);
                 nothing is modified then.
         """
+        self.check_state(state)
+        self.load_state_dict(state)
+
+    def check_state(self, state: dict[str, Tensor]) -> None:
+        """Raise ``ValueError`` naming the first key that ``state`` lacks, has extra or
+        holds in another shape than ``state_dict()``."""
         expected = self.state_dict()
         missing = [key for key in expected if key not in state]
         if missing:
-            raise ValueError(f"federated state lacks key {missing[0]!r} ({len(missing)} missing)")
+            raise ValueError(f"the networks' state lacks {missing[0]!r} ({len(missing)} missing)")
         unexpected = [key for key in state if key not in expected]
         if unexpected:
-            raise ValueError(f"federated state has unexpected key {unexpected[0]!r}")
+            raise ValueError(f"the networks' state has unexpected key {unexpected[0]!r}")
         for key, tensor in expected.items():
             value = state[key]
             if not isinstance(value, Tensor) or value.shape != tensor.shape:
                 shape = tuple(value.shape) if isinstance(value, Tensor) else type(value).__name__
                 raise ValueError(f"{key!r}: expected shape {tuple(tensor.shape)}, got {shape}")
-        self.load_state_dict(state)
 
 
 def build_network(
