@@ -17,10 +17,12 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from frl import run_directory as rundir
+from frl.agents.config import DDPGConfig
 from frl.agents.precision import precision_report
 from frl.envs.config import traffic_name
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.coordinator import run_logged
+from frl.federation.plan import FederationPlan
 from frl.federation.strategies import ServerStrategy
 from frl.federation.tensorboard import (
     EPISODE_WINDOW,
@@ -44,6 +46,24 @@ FINAL_REWARD_FRACTION = 0.1
 _VOLATILE_KEYS = ("progress", "resume", "run_dir", "cores")
 """Keys that may differ between a run and its resumption; ``cores`` is the resuming
 machine's share, taken from the new config."""
+
+
+def budget_line(plan: FederationPlan, agent: DDPGConfig) -> str:
+    """What a run trains, in one line: its vehicles, each one's environment steps and
+    updates, and its rounds. Updates are counted as due (every ``train_freq``-th step from
+    ``learning_starts`` on); the first waits until the buffer holds a batch."""
+    first = max(agent.learning_starts, 1)
+    updates = plan.total_steps // agent.train_freq - (first - 1) // agent.train_freq
+    every = "every step" if agent.train_freq == 1 else f"one every {agent.train_freq} steps"
+    vehicles = plan.fleet_size
+    tasks = ", ".join(plan.client_tasks) if vehicles <= 6 else f"{vehicles} vehicles"
+    rounds = "models averaged" if plan.aggregates else "checkpoints"
+    return (
+        f"{plan.scheme}, {vehicles} vehicle{'s' if vehicles > 1 else ''} ({tasks}), each "
+        f"{plan.total_steps:,} environment steps and {max(updates, 0):,} updates ({every} "
+        f"after the first {agent.learning_starts:,}); {rounds} every {plan.interval:,} "
+        f"steps, {plan.num_rounds} rounds"
+    )
 
 
 def train(
@@ -91,6 +111,7 @@ def train(
         settings.device,
         "yes" if precision["native_bf16"] else "no",
     )
+    log.info("training: %s", budget_line(settings.plan, settings.agent))
 
     run_dir.mkdir(parents=True, exist_ok=True)
     to_save = (

@@ -165,3 +165,29 @@ def test_a_config_pickled_into_another_process_still_merges_with_the_schema():
     )
     assert result.returncode == 0, result.stderr.decode()[-2000:]
     assert result.stdout.decode().strip() == "3"
+
+
+@pytest.mark.parametrize(("train_freq", "learning_starts"), [(1, 10), (3, 10), (8, 1)])
+def test_the_run_says_what_it_trains_and_counts_the_updates_an_agent_takes(
+    train_freq, learning_starts
+):
+    import numpy as np
+    from gymnasium import spaces
+
+    from frl.agents import DDPG, DDPGConfig
+    from frl.federation.plan import FederationPlan
+    from frl.training import budget_line
+
+    config = DDPGConfig(
+        hidden_sizes=(8,), batch_size=1, buffer_size=100, n_step=1,
+        learning_starts=learning_starts, train_freq=train_freq,
+    )  # fmt: skip
+    box = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+    agent = DDPG(box, box, config)
+    for _ in range(60):
+        agent.observe(np.zeros(2), np.zeros(2), 0.0, np.zeros(2), False)
+        agent.update()
+    line = budget_line(FederationPlan(total_steps=60, interval=20), config)
+    assert f"each 60 environment steps and {agent.num_updates} updates" in line
+    assert line.startswith("fedavg, 3 vehicles (left, straight, right)")
+    assert line.endswith("models averaged every 20 steps, 3 rounds")
