@@ -275,28 +275,23 @@ class ReplayBuffer:
             return batch
         return Batch(*(None if t is None else t.to(device, non_blocking=True) for t in batch))
 
+    def _per_transition(self) -> tuple[str, ...]:
+        """The arrays with one row per transition besides the observations."""
+        return ("actions", "rewards", "terminated", "horizons") + (
+            ("guide_actions",) if self.guided else ()
+        )
+
     def state_dict(self) -> dict[str, Any]:
         """The filled part as tensors, the write position and the sampling generator."""
         n = self.size
-        state: dict[str, Any] = {
-            "pos": self.pos,
-            "size": n,
-            "actions": torch.from_numpy(self.actions[:n].copy()),
-            "rewards": torch.from_numpy(self.rewards[:n].copy()),
-            "terminated": torch.from_numpy(self.terminated[:n].copy()),
-            "horizons": torch.from_numpy(self.horizons[:n].copy()),
-            "rng": generator_state(self.rng),
-        }
-        if self.guided:
-            state["guide_actions"] = torch.from_numpy(self.guide_actions[:n].copy())
+        state: dict[str, Any] = {"pos": self.pos, "size": n, "rng": generator_state(self.rng)}
+        for name in self._per_transition():
+            state[name] = torch.from_numpy(getattr(self, name)[:n].copy())
         for name in ("_obs", "_next_obs"):
             store = getattr(self, name)
             if self.sparse:
-                state[name] = {
-                    "counts": torch.from_numpy(store.counts[:n].copy()),
-                    "indices": torch.from_numpy(store.indices[:n].copy()),
-                    "values": torch.from_numpy(store.values[:n].copy()),
-                }
+                parts = ("counts", "indices", "values")
+                state[name] = {p: torch.from_numpy(getattr(store, p)[:n].copy()) for p in parts}
             else:
                 state[name] = torch.from_numpy(store[:n].copy())
         return state
@@ -318,12 +313,9 @@ class ReplayBuffer:
                 store.values[:n, :width] = saved["values"].numpy()
             else:
                 store[:n] = saved.numpy()
-        self.actions[:n] = state["actions"].numpy()
-        self.rewards[:n] = state["rewards"].numpy()
-        self.terminated[:n] = state["terminated"].numpy()
         # Buffers saved before n-step returns hold one-step transitions only.
-        self.horizons[:n] = state["horizons"].numpy() if "horizons" in state else 1.0
-        if self.guided:
-            self.guide_actions[:n] = state["guide_actions"].numpy()
+        state = {"horizons": torch.ones(n), **state}
+        for name in self._per_transition():
+            getattr(self, name)[:n] = state[name].numpy()
         self.pos, self.size = int(state["pos"]), n
         set_generator_state(self.rng, state["rng"])
