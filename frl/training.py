@@ -56,7 +56,8 @@ def budget_line(plan: FederationPlan, agent: DDPGConfig) -> str:
     updates = plan.total_steps // agent.train_freq - (first - 1) // agent.train_freq
     every = "every step" if agent.train_freq == 1 else f"one every {agent.train_freq} steps"
     vehicles = plan.fleet_size
-    tasks = ", ".join(plan.client_tasks) if vehicles <= 6 else f"{vehicles} vehicles"
+    # A fleet names its distinct tasks once, not each of its vehicles.
+    tasks = ", ".join(plan.client_tasks if vehicles <= 6 else plan.test_tasks)
     rounds = "models averaged" if plan.aggregates else "checkpoints"
     return (
         f"{plan.scheme}, {vehicles} vehicle{'s' if vehicles > 1 else ''} ({tasks}), each "

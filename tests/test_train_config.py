@@ -191,3 +191,5 @@ def test_the_run_says_what_it_trains_and_counts_the_updates_an_agent_takes(
     assert f"each 60 environment steps and {agent.num_updates} updates" in line
     assert line.startswith("fedavg, 3 vehicles (left, straight, right)")
     assert line.endswith("models averaged every 20 steps, 3 rounds")
+    fleet = budget_line(FederationPlan(total_steps=60, interval=20, vehicles_per_task=3), config)
+    assert fleet.startswith("fedavg, 9 vehicles (left, straight, right), each 60 environment")
