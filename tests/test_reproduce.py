@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from train_helpers import TINY_OVERRIDES, compose_config
 
 from frl import run_directory as rundir
@@ -57,9 +58,17 @@ def test_auto_resumes_a_killed_run_skips_a_finished_one_and_the_report_reads_it(
     assert (run_dir / "results.json").read_text() == saved
 
     run = load_run(run_dir)
-    np.testing.assert_allclose(run.step_rewards, np.load(run_dir / "step_rewards.npy"), rtol=1e-6)
-    assert run.step_rewards.size == 160  # the killed sessions' events purged, not doubled
-    assert 99.0 not in run.step_rewards
+    every_step = np.load(run_dir / "step_rewards.npy")
+    np.testing.assert_array_equal(run.step_rewards, every_step)
+    assert run.step_rewards.size == 160
+    # TensorBoard: a mean per window of each round's steps (rounds of 80 steps, windows of
+    # 100), the killed sessions' events purged, not doubled.
+    events = EventAccumulator(str(run_dir / "tb"), size_guidance={"scalars": 0})
+    events.Reload()
+    logged = events.Scalars("train/step_reward")
+    assert [event.step for event in logged] == [80, 160]
+    means = every_step.reshape(2, 80).mean(axis=1)
+    np.testing.assert_allclose([event.value for event in logged], means, rtol=1e-6)
     (client,) = run.episodes
     assert client == "client0_random"
     assert run.episodes[client].end_step.size == results["training"]["episodes"][client]

@@ -9,7 +9,8 @@ curves of runs with different schemes, intervals or client counts line up.
   return over its last 100 episodes, averaged over the clients, at each episode end
   (Stable-Baselines3's tag; the paper's scale, a clean pass about 6.7) |
 | ``client{i}_{task}/ep_rew_mean`` | that client's mean return over its last 100 episodes |
-| ``train/step_reward`` | instantaneous reward of each step, averaged over clients |
+| ``train/step_reward`` | the reward of each step averaged over the clients, then over
+  windows of 100 steps (the exact series of every step is the run's ``step_rewards.npy``) |
 | ``client{i}_{task}/episode_return`` | return of each finished episode, at its last step |
 | ``client{i}_{task}/episode_collision`` | 1 if that episode ended in a collision, else 0 |
 | ``client{i}_{task}/episode_arrived`` | 1 if it arrived |
@@ -124,8 +125,9 @@ class TrainingLogger:
         state), which ``ep_rew_mean`` continues."""
         self._log_return_means(updates, recent_returns or {}, start_step)
         rewards = np.mean(np.stack([u.step_rewards for u in updates]), axis=0)
-        for offset, value in enumerate(rewards.tolist(), start=start_step + 1):
-            self.writer.add_scalar("train/step_reward", value, offset)
+        # A point per window, not per step: one event per step was most of the roadside
+        # unit's time at 80,000 steps, and TensorBoard keeps 1,000 points of a series.
+        self._windows(self.writer, "train/step_reward", rewards, start_step, np.mean)
         for update in updates:
             writer, prefix = self._vehicle(update.client)
             for episode in update.episodes:

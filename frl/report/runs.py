@@ -1,8 +1,9 @@
 """Read finished runs, from a run directory or from its exported result files, and export.
 
-A run directory (docs/training.md) holds ``results.json``, ``config.yaml`` and TensorBoard
-events under ``tb/``; the per-step reward curve is ``train/step_reward`` and each client's
-training episodes are ``client{i}_{task}/episode_*``. :func:`export_run` writes the small
+A run directory (docs/training.md) holds ``results.json``, ``config.yaml``, every step's
+reward in ``step_rewards.npy`` and TensorBoard events under ``tb/``, where each client's
+training episodes are ``client{i}_{task}/episode_*`` (runs written before the array logged
+every step's reward as ``train/step_reward``). :func:`export_run` writes the small
 files the report needs into a data directory, so figures can be re-plotted without the run:
 
 | file | content |
@@ -176,8 +177,11 @@ def load_run(path: str | os.PathLike[str]) -> RunRecord:
     if (path / STEP_REWARDS_CSV).exists():
         step_rewards, episodes = _read_csvs(path)
     elif (path / TB_DIR).is_dir():
-        step_rewards, episodes = _read_tensorboard(path / TB_DIR)
-        if step_rewards.size == 0 and (path / STEP_REWARDS_NPY).exists():
+        # step_rewards.npy holds every step's reward; TensorBoard holds 100-step means
+        # (every step in runs written before, the same values as the array's).
+        has_array = (path / STEP_REWARDS_NPY).exists()
+        step_rewards, episodes = _read_tensorboard(path / TB_DIR, step_rewards=not has_array)
+        if has_array:
             step_rewards = np.load(path / STEP_REWARDS_NPY).astype(float)
     else:
         raise RunDataError(f"{path}: neither {STEP_REWARDS_CSV} nor TensorBoard events ({TB_DIR}/)")
@@ -269,17 +273,21 @@ def _episodes(columns: dict[str, list[float]]) -> Episodes:
     )
 
 
-def _read_tensorboard(tb_dir: Path) -> tuple[np.ndarray, dict[str, Episodes]]:
-    """The step rewards and each client's episodes; a fleet's vehicles each have a run of
-    their own under ``vehicles/`` (tags ``vehicle/...``), the others sit in the run's."""
+def _read_tensorboard(
+    tb_dir: Path, step_rewards: bool = True
+) -> tuple[np.ndarray, dict[str, Episodes]]:
+    """The step rewards (empty unless ``step_rewards``: a run written before
+    ``step_rewards.npy`` logged every step) and each client's episodes; a fleet's vehicles
+    each have a run of their own under ``vehicles/`` (tags ``vehicle/...``), the others sit
+    in the run's."""
     accumulator = _accumulator(tb_dir)
     tags = set(accumulator.Tags().get("scalars", []))
-    step_rewards = np.zeros(0)
-    if STEP_REWARD_TAG in tags:
+    rewards = np.zeros(0)
+    if step_rewards and STEP_REWARD_TAG in tags:
         steps, values = _series(accumulator, STEP_REWARD_TAG)
         if not np.array_equal(steps, np.arange(1, steps.size + 1)):
             raise RunDataError(f"{tb_dir}: {STEP_REWARD_TAG} misses steps")
-        step_rewards = values
+        rewards = values
     episodes: dict[str, Episodes] = {}
     clients = sorted({t.split("/")[0] for t in tags if t.endswith(f"/{_EPISODE_TAGS['return']}")})
     for client in clients:
@@ -290,7 +298,7 @@ def _read_tensorboard(tb_dir: Path) -> tuple[np.ndarray, dict[str, Episodes]]:
         episodes[run.name] = _client_episodes(
             own, set(own.Tags().get("scalars", [])), "vehicle", run
         )
-    return step_rewards, episodes
+    return rewards, episodes
 
 
 def _accumulator(directory: Path) -> Any:
