@@ -88,7 +88,12 @@ def test_each_scheme_trains_logs_and_tests(scheme, tmp_path, capsys):
     assert not any((run_dir / "checkpoints").iterdir())  # buffers dropped once models exist
 
     tags = _scalar_tags(run_dir)
-    assert len(tags["train/step_reward"]) == 240
+    every_step = np.load(run_dir / "step_rewards.npy")
+    assert every_step.shape == (240,)
+    # TensorBoard: a mean per window, windows of 100 steps cut at each round's end (80).
+    assert [e.step for e in tags["train/step_reward"]] == [80, 160, 240]
+    means = every_step.reshape(3, 80).mean(axis=1)
+    assert [e.value for e in tags["train/step_reward"]] == pytest.approx(means, rel=1e-6)
     assert [e.step for e in tags["server/round"]] == [80, 160, 240]
     fig4 = reward_curve(load_run(run_dir), EPISODE_WINDOW)  # the report's Fig. 4 curve
     assert tags["rollout/ep_rew_mean"][-1].value == pytest.approx(fig4[-1], abs=1e-4)
