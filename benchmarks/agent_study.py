@@ -7,7 +7,8 @@
 
 Each variant is a name and Hydra overrides. Every (variant, seed) trains one vehicle on
 ``--task`` (Sep-DDPG with that task alone: the left turn is the hardest task, about
-3.5 min a run at the paper's budget in float32) and tests it on the task's 100 test
+3.5 min a run at the paper's budget, ``-- budget=paper``, in float32) on the default
+budget unless told, and tests it on the task's 100 test
 episodes, where full throttle, the gap-acceptance driver and the oracle drive the very
 same traffic. ``--scheme fedavg`` trains the three-vehicle FedAvg-DDPG instead, tested on
 every task. Runs go ``--jobs`` at a time, each on its share of the cores (or through a

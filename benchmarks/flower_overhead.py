@@ -50,6 +50,7 @@ def main() -> None:
     parser.add_argument("--runtimes", default="processes,simulation,deployment")
     args = parser.parse_args()
     overrides = [
+        "budget=paper",  # an update every step, the budget set below
         f"total_steps={args.total_steps}",
         f"interval={args.interval}",
         f"seed={args.seed}",

@@ -4,8 +4,9 @@
         [--jobs 1] [--out runs/learning] [--data-dir DIR] [-- HYDRA_OVERRIDES...]
     python benchmarks/learning.py --launcher submitit_slurm -- hydra.launcher.partition=cpu
 
-Trains each scheme at each seed with ``python -m frl.train`` (default config: the paper's
-budget and traffic; overrides after ``--`` go to every run), ``--jobs`` at a time, each
+Trains each scheme at each seed with ``python -m frl.train`` (default config: the default
+budget, 80,000 steps and an update every 8, and the paper's traffic; overrides after ``--``
+go to every run, ``-- budget=paper`` for the editions' budget), ``--jobs`` at a time, each
 resumable (``resume=auto``: a finished run is read back, a killed one continues); with
 ``--launcher`` through a Hydra launcher instead (a SLURM job or Ray task per run,
 ``--cores-per-job`` CPUs each; docs/reproduction.md, "On a cluster"). Then

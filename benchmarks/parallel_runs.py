@@ -31,7 +31,7 @@ from frl.side_by_side import cores_per_job
 def command(seed: int, cores: int, run_dir: Path, args: argparse.Namespace) -> list[str]:
     return [
         sys.executable, "-m", "frl.train", f"federation={args.scheme}", f"seed={seed}",
-        f"total_steps={args.steps}", f"interval={args.steps}", "eval_episodes=0",
+        "budget=paper", f"total_steps={args.steps}", f"interval={args.steps}", "eval_episodes=0",
         f"cores={cores}", f"run_dir={run_dir}", "progress=false", *args.overrides,
     ]  # fmt: skip
 

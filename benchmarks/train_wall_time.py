@@ -1,6 +1,7 @@
-"""Wall time of the paper-scale run: `python -m frl.train federation=fedavg interval=2000`.
+"""Wall time of the main command, `python -m frl.train` (FedAvg-DDPG, the default budget).
 
-    python benchmarks/train_wall_time.py                    # run it (10-15 min on 2 cores)
+    python benchmarks/train_wall_time.py                    # run it (about 17 min on 2 cores)
+    python benchmarks/train_wall_time.py --budget paper     # the editions' budget (about 13)
     python benchmarks/train_wall_time.py --from-run RUN_DIR # summarise a finished run
     python benchmarks/train_wall_time.py --total-steps 2000 --interval 500 --eval-episodes 10
 
@@ -59,8 +60,9 @@ def summarise(run_dir: Path, command_wall_s: float | None = None) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--from-run", type=Path, help="summarise this finished run instead")
-    parser.add_argument("--total-steps", type=int, default=10_000)
-    parser.add_argument("--interval", type=int, default=2_000)
+    parser.add_argument("--budget", choices=("data", "paper"), help="default: the config's")
+    parser.add_argument("--total-steps", type=int, help="default: the budget's")
+    parser.add_argument("--interval", type=int, help="default: the budget's")
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
@@ -68,9 +70,11 @@ def main() -> None:
         summarise(args.from_run)
         return
     run_dir = REPO / "outputs" / "benchmarks" / time.strftime("train_wall_time_%Y%m%d_%H%M%S")
+    budget = [f"budget={args.budget}"] if args.budget else []
+    budget += [f"total_steps={args.total_steps}"] if args.total_steps else []
+    budget += [f"interval={args.interval}"] if args.interval else []
     command = [
-        sys.executable, "-m", "frl.train", "federation=fedavg",
-        f"interval={args.interval}", f"total_steps={args.total_steps}",
+        sys.executable, "-m", "frl.train", "federation=fedavg", *budget,
         f"eval_episodes={args.eval_episodes}", f"seed={args.seed}",
         "progress=false", f"hydra.run.dir={run_dir}",
     ]  # fmt: skip

@@ -168,11 +168,14 @@ FederationSchema = schema_of(
 
 @dataclass
 class TrainSchema:
-    """Root of ``frl/conf/config.yaml``. Budget and cadence are root keys: ``interval=2000``."""
+    """Root of ``frl/conf/config.yaml``. Budget and cadence are root keys
+    (``interval=2000``), set with ``agent.train_freq`` by the ``budget`` group: ``data``
+    (80,000 steps, 16,000 between aggregations, an update every 8 steps; the default) or
+    ``paper`` (10,000, 2,000, every step). The defaults below are the library's (paper)."""
 
     seed: int = 0
     total_steps: int = FederationPlan.total_steps
-    """Environment steps per agent (the paper's budget)."""
+    """Environment steps per agent."""
     interval: int = FederationPlan.interval
     """Environment steps per client between aggregations (FedAvg) or checkpoints (all)."""
     eval_episodes: int = 100
