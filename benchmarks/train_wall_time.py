@@ -1,6 +1,6 @@
 """Wall time of the main command, `python -m frl.train` (FedAvg-DDPG, the default budget).
 
-    python benchmarks/train_wall_time.py                    # run it (about 17 min on 2 cores)
+    python benchmarks/train_wall_time.py                    # run it (about 16 min on 2 cores)
     python benchmarks/train_wall_time.py --budget paper     # the editions' budget (about 13)
     python benchmarks/train_wall_time.py --from-run RUN_DIR # summarise a finished run
     python benchmarks/train_wall_time.py --total-steps 2000 --interval 500 --eval-episodes 10
