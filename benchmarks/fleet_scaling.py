@@ -87,7 +87,8 @@ def run_fleet(vehicles: int, args: argparse.Namespace, overrides: list[str]) -> 
     shutil.rmtree(run_dir, ignore_errors=True)
     command = [
         sys.executable, "-m", "frl.train", f"federation.vehicles_per_task={vehicles // 3}",
-        "budget=paper", f"total_steps={args.total_steps}", f"interval={args.interval}", "eval_episodes=0",
+        "budget=paper", f"total_steps={args.total_steps}", f"interval={args.interval}",
+        "eval_episodes=0",
         f"agent.learning_starts={args.interval}", "progress=false", f"run_dir={run_dir}",
         *overrides,
     ]  # fmt: skip

@@ -1,7 +1,7 @@
 """``python -m frl.train``: the Hydra entry point of a training run.
 
-    python -m frl.train                                   # FedAvg-DDPG, 80,000 steps, an update every 8
-    python -m frl.train budget=paper                      # the paper's 10,000 steps, an update each
+    python -m frl.train                          # FedAvg-DDPG, 80,000 steps, an update every 8
+    python -m frl.train budget=paper             # the paper's 10,000 steps, an update each
     python -m frl.train -m federation=central,separate,fedavg seed=0,1,2
     python -m frl.train +experiment=quick                 # about a minute
     python -m frl.train resume=true                       # continue the newest killed run
