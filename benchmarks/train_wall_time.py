@@ -71,8 +71,8 @@ def main() -> None:
         return
     run_dir = REPO / "outputs" / "benchmarks" / time.strftime("train_wall_time_%Y%m%d_%H%M%S")
     budget = [f"budget={args.budget}"] if args.budget else []
-    budget += [f"total_steps={args.total_steps}"] if args.total_steps else []
-    budget += [f"interval={args.interval}"] if args.interval else []
+    budget += [f"total_steps={args.total_steps}"] if args.total_steps is not None else []
+    budget += [f"interval={args.interval}"] if args.interval is not None else []
     command = [
         sys.executable, "-m", "frl.train", "federation=fedavg", *budget,
         f"eval_episodes={args.eval_episodes}", f"seed={args.seed}",

@@ -27,40 +27,32 @@ def test_the_default_config_is_fedavg_on_the_three_tasks():
     )
 
 
-def _composed(overrides: list[str]):
-    """The config as ``python -m frl.train`` composes it, without the tests' tiny budget."""
-    from hydra import compose, initialize_config_dir
-
-    from frl.train_config import register_configs
-
-    register_configs()
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose("config", overrides=overrides)
-
-
 def test_the_main_command_trains_eight_steps_per_update_and_the_editions_one():
     from frl.training import budget_line
 
-    settings = validate(_composed([]))
+    def full(overrides: list[str]):  # as python -m frl.train composes it, no tiny budget
+        return validate(compose_config(None, overrides, tiny=False))
+
+    settings = full([])
     assert (settings.plan.total_steps, settings.plan.interval) == (80_000, 16_000)
     assert settings.agent.train_freq == 8
     line = budget_line(settings.plan, settings.agent)
     assert "each 80,000 environment steps and 9,876 updates (one every 8 steps" in line
     assert line.endswith("models averaged every 16,000 steps, 5 rounds")
-    paper = validate(_composed(["budget=paper"]))
+    paper = full(["budget=paper"])
     assert (paper.plan.total_steps, paper.plan.interval, paper.agent.train_freq) == (
         10_000, 2_000, 1,
     )  # fmt: skip
-    assert paper.agent == validate(_composed(["agent.train_freq=1"])).agent
+    assert paper.agent == full(["agent.train_freq=1"]).agent
     assert "each 10,000 environment steps and 9,001 updates (every step" in budget_line(
         paper.plan, paper.agent
     )
     for preset in ("fig3", "fig4", "fig4-guided", "fig6", "quick", "study-learning"):
-        edition = validate(_composed([f"+experiment={preset}"]))
+        edition = full([f"+experiment={preset}"])
         assert edition.agent.train_freq == 1, preset
         assert edition.plan.total_steps == (3_000 if preset == "quick" else 10_000), preset
-    assert validate(_composed(["+experiment=fig6", "interval=500"])).plan.interval == 500
-    assert validate(_composed(["agent=ddpg-paper", "budget=paper"])).agent.train_freq == 1
+    assert full(["+experiment=fig6", "interval=500"]).plan.interval == 500
+    assert full(["agent=ddpg-paper", "budget=paper"]).agent.train_freq == 1
 
 
 @pytest.mark.parametrize(

@@ -34,12 +34,14 @@ TINY_AGENT = DDPGConfig(hidden_sizes=(16, 16), batch_size=16, learning_starts=20
 TINY_ENV = EnvConfig(max_episode_steps=30, warmup_steps=10)
 
 
-def compose_config(run_dir: Path | None, overrides: list[str] = ()):  # type: ignore[assignment]
-    """The composed Hydra config with the tiny overrides, writing into ``run_dir``."""
+def compose_config(run_dir: Path | None, overrides: list[str] = (), tiny: bool = True):  # type: ignore[assignment]
+    """The composed Hydra config with the tiny overrides (without them, with ``tiny=False``:
+    as ``python -m frl.train`` composes it), writing into ``run_dir``."""
     register_configs()
     extra = [f"run_dir={run_dir}"] if run_dir is not None else []
+    base = TINY_OVERRIDES if tiny else []
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose("config", overrides=[*TINY_OVERRIDES, *extra, *overrides])
+        return compose("config", overrides=[*base, *extra, *overrides])
 
 
 def tiny_spec(index: int, task: str, seed: int = 0) -> ClientSpec:

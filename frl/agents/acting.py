@@ -83,13 +83,11 @@ def encode_one(encoder: VehicleSetEncoder, flat: np.ndarray, device: torch.devic
         if encoder.extra_features:
             extra = torch.from_numpy(flat[encoder.grid_features :].reshape(1, -1)).to(device)
         return encoder.pool(vehicles, sample, 1, extra)
-    # On the CPU the vehicles' MLP runs the encoder's own layers and the pooling is done
-    # in NumPy: a dozen torch calls fewer. The numbers are the encoder's: a sum over axis
-    # 0 from zero adds the vehicles in order, as ``index_add_`` does, and a max is exact.
-    hidden = torch.from_numpy(np.concatenate([positions.numpy()[cells], features], axis=1))
-    for layer in encoder.layers:
-        hidden = torch.relu_(F.linear(hidden, layer.weight, layer.bias))
-    vehicles_out = hidden.detach().numpy()
+    # On the CPU the vehicles go through the encoder's own MLP and the pooling is done in
+    # NumPy: a dozen torch calls fewer. The numbers are the encoder's: a sum over axis 0
+    # from zero adds the vehicles in order, as ``index_add_`` does, and a max is exact.
+    vehicles = torch.from_numpy(np.concatenate([positions.numpy()[cells], features], axis=1))
+    vehicles_out = encoder.embed(vehicles).detach().numpy()
     pooled = [
         np.add.reduce(vehicles_out, axis=0, initial=0.0),
         np.maximum.reduce(vehicles_out, axis=0, initial=0.0),

@@ -86,13 +86,18 @@ class VehicleSetEncoder(nn.Module):
         vehicles = torch.cat([self.positions[cell], channels], dim=1)
         return self.pool(vehicles, sample, batch, extra)
 
+    def embed(self, vehicles: Tensor) -> Tensor:
+        """The shared per-vehicle MLP: ``[n, 2 + C - 1]`` -> ``[n, width]``, each >= 0."""
+        hidden = vehicles
+        for layer in self.layers:
+            hidden = torch.relu(F.linear(hidden, layer.weight, layer.bias))
+        return hidden
+
     def pool(self, vehicles: Tensor, sample: Tensor, batch: int, extra: Tensor | None) -> Tensor:
         """The encoding of ``batch`` observations from their ``vehicles`` ``[n, 2 + C - 1]``
         (position, then channels), ``sample`` ``[n]`` naming each one's observation, and
         the features after the grid (``extra``, or None without any)."""
-        hidden = vehicles
-        for layer in self.layers:
-            hidden = torch.relu(F.linear(hidden, layer.weight, layer.bias))
+        hidden = self.embed(vehicles)
         pooled_sum = hidden.new_zeros(batch, self.width).index_add_(0, sample, hidden)
         # ReLU outputs are >= 0, so a max that includes the zero start is the vehicles' max
         # (and 0 for an observation without any vehicle).
