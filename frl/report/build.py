@@ -9,7 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from frl.fileio import write_bytes_atomic
-from frl.report import aggregate, claims, markdown, plots
+from frl.report import aggregate, claims, markdown, plots, run_sets
 from frl.report.aggregate import CurveSettings
 from frl.report.collect import AGENT_PANELS, Collection, collect
 
@@ -84,6 +84,7 @@ def build_report(
             fig6_yardsticks,
         ),
         "runs": markdown.runs_block(collection),
+        "studies": run_sets.studies_block(run_sets.study_run_sets(collection.root)),
     }
     existing = out.read_text() if out.exists() else None
     for panel, command in AGENT_PANELS.items():

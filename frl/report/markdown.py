@@ -111,6 +111,10 @@ _Discussion not written yet._
 
 {runs-paper-agent}
 
+## The studies' run sets
+
+{studies}
+
 ## Runs
 
 {runs}

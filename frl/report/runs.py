@@ -164,7 +164,7 @@ def has_complete_results(run_dir: Path) -> bool:
     state_path = run_dir / STATE_FILE
     if state_path.exists() and not read_json(state_path).get("training_finished"):
         return False
-    return evaluation_done(results, _read_config(run_dir))
+    return evaluation_done(results, read_config(run_dir))
 
 
 def load_run(path: str | os.PathLike[str]) -> RunRecord:
@@ -173,7 +173,7 @@ def load_run(path: str | os.PathLike[str]) -> RunRecord:
     if not (path / RESULTS_FILE).exists():
         raise RunDataError(f"{path}: no {RESULTS_FILE}")
     results = read_json(path / RESULTS_FILE)
-    config = _read_config(path)
+    config = read_config(path)
     if (path / STEP_REWARDS_CSV).exists():
         step_rewards, episodes = _read_csvs(path)
     elif (path / TB_DIR).is_dir():
@@ -231,7 +231,8 @@ def export_run(run_dir: str | os.PathLike[str], target: str | os.PathLike[str]) 
 
 
 # ------------------------------------------------------------------ readers
-def _read_config(path: Path) -> dict[str, Any]:
+def read_config(path: Path) -> dict[str, Any]:
+    """A run directory's resolved config ({} without one)."""
     config_path = path / CONFIG_FILE
     if not config_path.exists():
         return {}
