@@ -7,8 +7,8 @@ The layout, made by ``python -m frl.reproduce`` (run directories) and by its exp
     ROOT/fig6/interval{N}-seed{k}/                  Fig. 6 (interval 2000: fig4's fedavg runs)
     ROOT/fig3/{reward}-seed{k}/                     Fig. 3 (the paper reward: fig4's runs of
                                                     the tuning scheme)
-    ROOT/{panel}/fig4/{scheme}-seed{k}/             Figs. 4 and 5 of another agent, a panel
-                                                    of its own (AGENT_PANELS)
+    ROOT/{panel}/fig4/{scheme}-seed{k}/             Figs. 4 and 5 of another agent or
+                                                    budget, a panel of its own (AGENT_PANELS)
 
 Runs are grouped by what their ``results.json`` and ``config.yaml`` say, not by their
 directory names, so a user's own sweep laid out this way is read the same way.
@@ -27,15 +27,19 @@ FIGURE_DIRS: tuple[str, ...] = ("fig4", "fig6", "fig3")
 """Sweep directories; Fig. 5 is read from fig4's runs."""
 FIGURES: tuple[str, ...] = ("fig3", "fig4", "fig5", "fig6")
 AGENT_PANELS: dict[str, str] = {
+    "data-budget": "python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4 --runs-dir "
+    "outputs/repro/runs/data-budget --data-dir outputs/repro/data/data-budget -- budget=data",
     "guided": "python -m frl.reproduce --figures fig4-guided",
     "paper-agent": "python -m frl.reproduce --figures fig4 --runs-dir outputs/repro/runs/"
     "paper-agent --data-dir outputs/repro/data/paper-agent -- agent=ddpg-paper",
 }
 """Optional second roots under a reproduction root, each laid out like it, with Figs. 4
-and 5 trained on another agent, and the command that makes each: ``guided``
-(``agent=ddpg-guided``, which learns from the gap-acceptance rule) and ``paper-agent``
-(the paper's Table II agent). Each is reported as a panel of its own, never mixed with
-the default agent's runs."""
+and 5 trained on another agent or budget, and the command that makes each:
+``data-budget`` (the default agent at the main command's budget, 80,000 steps and an
+update every 8, where the editions train the paper's 10,000 and an update a step),
+``guided`` (``agent=ddpg-guided``, which learns from the gap-acceptance rule) and
+``paper-agent`` (the paper's Table II agent). Each is reported as a panel of its own,
+never mixed with the editions' runs."""
 
 
 @dataclass

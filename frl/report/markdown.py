@@ -87,6 +87,18 @@ _Discussion not written yet._
 
 _Discussion not written yet._
 
+## Figs. 4 and 5 at the default budget
+
+{claims-data-budget}
+
+{fig4-data-budget}
+
+{fig4-tested-data-budget}
+
+{fig5-data-budget}
+
+{runs-data-budget}
+
 ## Figs. 4 and 5 with the guided agent
 
 {claims-guided}
