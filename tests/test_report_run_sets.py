@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from frl.report.run_sets import studies_block, study_run_sets
+from frl.report.runs import RunDataError
 
 
 def _table(reward: float, collisions: float, tasks: tuple[str, ...]) -> dict:
@@ -82,3 +83,11 @@ def test_rows_without_the_rule_or_a_task_say_so_and_a_clone_gives_its_fitting(ro
 def test_a_root_without_studies_says_so(tmp_path):
     assert study_run_sets(tmp_path) == {}
     assert "No study runs" in studies_block({})
+
+
+def test_an_unreadable_run_is_named_in_one_error(root):
+    broken = root / "study-ratio" / "tf8" / "fedavg-seed2"
+    broken.mkdir()
+    (broken / "results.json").write_text("{not json")
+    with pytest.raises(RunDataError, match="fedavg-seed2: unreadable run files"):
+        study_run_sets(root)

@@ -19,9 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from frl.fileio import read_json
 from frl.report.markdown import fmt, table
-from frl.report.runs import read_config
+from frl.report.runs import RunDataError, read_config
 from frl.report.stats import Estimate, mean_ci
 from frl.run_directory import RESULTS_FILE
 
@@ -77,8 +79,7 @@ def study_run_sets(root: str | os.PathLike[str]) -> dict[str, list[RunSet]]:
             if match is None:
                 continue
             label = str(run_dir.parent.relative_to(study_dir) / match["name"])
-            label = label.removeprefix("./")
-            run = StudyRun(int(match["seed"]), read_json(results_path), read_config(run_dir))
+            run = StudyRun(int(match["seed"]), *_read(run_dir))
             if run.evaluation.get("average") is not None:
                 found.setdefault((study_dir.name, label), []).append(run)
     studies: dict[str, list[RunSet]] = {}
@@ -86,6 +87,13 @@ def study_run_sets(root: str | os.PathLike[str]) -> dict[str, list[RunSet]]:
         runs.sort(key=lambda r: r.seed)
         studies.setdefault(study, []).append(RunSet(study, label, tuple(runs)))
     return studies
+
+
+def _read(run_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    try:
+        return read_json(run_dir / RESULTS_FILE), read_config(run_dir)
+    except (OSError, ValueError, yaml.YAMLError) as error:
+        raise RunDataError(f"{run_dir}: unreadable run files ({error})") from error
 
 
 def studies_block(studies: dict[str, list[RunSet]]) -> str:
