@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from frl import run_directory as rundir
 from frl.agents.config import DDPGConfig
 from frl.agents.precision import precision_report
+from frl.budget import updates_due
 from frl.envs.config import traffic_name
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.coordinator import run_logged
@@ -52,8 +53,7 @@ def budget_line(plan: FederationPlan, agent: DDPGConfig) -> str:
     """What a run trains, in one line: its vehicles, each one's environment steps and
     updates, and its rounds. Updates are counted as due (every ``train_freq``-th step from
     ``learning_starts`` on); the first waits until the buffer holds a batch."""
-    first = max(agent.learning_starts, 1)
-    updates = plan.total_steps // agent.train_freq - (first - 1) // agent.train_freq
+    updates = updates_due(plan.total_steps, agent.train_freq, agent.learning_starts)
     every = "every step" if agent.train_freq == 1 else f"one every {agent.train_freq} steps"
     vehicles = plan.fleet_size
     # A fleet names its distinct tasks once, not each of its vehicles.
@@ -61,7 +61,7 @@ def budget_line(plan: FederationPlan, agent: DDPGConfig) -> str:
     rounds = "models averaged" if plan.aggregates else "checkpoints"
     return (
         f"{plan.scheme}, {vehicles} vehicle{'s' if vehicles > 1 else ''} ({tasks}), each "
-        f"{plan.total_steps:,} environment steps and {max(updates, 0):,} updates ({every} "
+        f"{plan.total_steps:,} environment steps and {updates:,} updates ({every} "
         f"after the first {agent.learning_starts:,}); {rounds} every {plan.interval:,} "
         f"steps, {plan.num_rounds} rounds"
     )

@@ -21,15 +21,17 @@ from typing import Any
 
 import yaml
 
+from frl.budget import updates_due
 from frl.fileio import read_json
+from frl.report.aggregate import RULE
 from frl.report.markdown import fmt, table
+from frl.report.measures import test_metric, yardstick_metric
 from frl.report.runs import RunDataError, read_config
 from frl.report.stats import Estimate, mean_ci
 from frl.run_directory import RESULTS_FILE
 
 STUDY_PREFIX = "study-"
 TASK_COLUMNS = ("left", "straight", "right")
-RULE = "gap_acceptance"
 _SEEDED = re.compile(r"^(?P<name>.+)-seed(?P<seed>\d+)$")
 
 
@@ -46,17 +48,10 @@ class StudyRun:
         return self.results.get("evaluation") or {}
 
     def tested(self, name: str, task: str = "average") -> float | None:
-        row = self._row(self.evaluation, task)
-        return None if row is None else row.get(name)
+        return test_metric(name, task)(self)  # type: ignore[arg-type]
 
     def rule(self, name: str) -> float | None:
-        yardstick = (self.evaluation.get("yardsticks") or {}).get(RULE)
-        return None if yardstick is None else self._row(yardstick, "average").get(name)
-
-    @staticmethod
-    def _row(table_: dict[str, Any], task: str) -> dict[str, Any] | None:
-        return table_.get("average") if task == "average" else (
-            table_.get("per_task") or {}).get(task)  # fmt: skip
+        return yardstick_metric(RULE, name)(self)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -160,7 +155,7 @@ def _budget(runs: Iterable[StudyRun]) -> str:
 
 
 def _steps_and_updates(run: StudyRun) -> str:
-    """Environment steps and due updates per vehicle (frl.training.budget_line's count);
+    """Environment steps and due updates per vehicle (:func:`frl.budget.updates_due`);
     a behaviour clone's grids and fitting steps per task."""
     clone = run.results.get("clone")
     if clone is not None:
@@ -168,9 +163,10 @@ def _steps_and_updates(run: StudyRun) -> str:
     config = run.config
     agent = config.get("agent") or {}
     steps = int(config.get("total_steps", 0))
-    every = int(agent.get("train_freq", 1))
-    first = max(int(agent.get("learning_starts", 1)), 1)
-    return f"{steps:,} / {max(steps // every - (first - 1) // every, 0):,}"
+    updates = updates_due(
+        steps, int(agent.get("train_freq", 1)), int(agent.get("learning_starts", 1))
+    )
+    return f"{steps:,} / {updates:,}"
 
 
 def _provenance(runs: Iterable[StudyRun]) -> str:
