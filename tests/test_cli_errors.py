@@ -118,6 +118,24 @@ def test_a_run_directory_that_cannot_be_made_is_refused_in_one_line(run_cli, key
     assert blocker.read_text() == "not a directory" and sorted(tmp_path.iterdir()) == [blocker]
 
 
+def test_a_run_directory_on_an_unwritable_parent_is_refused_in_one_line(
+    run_cli, monkeypatch, tmp_path
+):
+    # Root writes through permission bits, so the read-only parent (as on a read-only or
+    # full mount) is what os.access reports for it.
+    parent = tmp_path / "read-only"
+    parent.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(
+        os, "access", lambda path, mode: Path(path) != parent and real_access(path, mode)
+    )
+    # Tiny, so that without the check the run ends quickly and the assertions fail.
+    overrides = [*TINY_OVERRIDES, "eval_episodes=0", f"run_dir={parent / 'run'}"]
+    result = run_cli("frl.train", *overrides, cwd=tmp_path)
+    assert_one_line_error(result, "frl.train: config error:", f"{parent} is not writable")
+    assert sorted(tmp_path.rglob("*")) == [parent]
+
+
 def test_resuming_a_directory_with_no_run(run_cli, tmp_path):
     result = run_cli("frl.train", f"resume={tmp_path}", cwd=tmp_path)
     assert_one_line_error(result, "frl.train: config error:", "no checkpointed run there")
