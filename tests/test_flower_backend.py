@@ -21,7 +21,8 @@ from frl.flower.launch import TOKEN_VAR
 from frl.train import train
 from frl.train_config import ConfigError, validate
 
-# One xdist worker runs this module and test_launchers.py: both start local Ray clusters.
+# One xdist worker runs this module and test_launchers.py: both start local Ray clusters
+# (but for the deployment test below).
 pytestmark = pytest.mark.xdist_group("ray-and-flower")
 
 TWO_ROUNDS = ["total_steps=80", "interval=40", "eval_episodes=0"]
@@ -108,7 +109,10 @@ def test_a_sampled_fleet_with_flowers_fedavgm_matches_the_processes_backend(tmp_
     assert multiprocessing.active_children() == []
 
 
+# Starts no Ray cluster, so it may run beside the Ray tests on another xdist worker: a
+# group of its own (xdist joins a test's group names: "flower-deployment_ray-and-flower").
 @pytest.mark.slow
+@pytest.mark.xdist_group("flower-deployment")
 def test_deployment_on_loopback_matches_and_leaves_no_process(in_process_run, tmp_path):
     """A SuperLink and three SuperNodes (each with its vehicle process) on 127.0.0.1."""
     run_dir = tmp_path / "run"
