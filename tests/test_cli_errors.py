@@ -73,6 +73,11 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("agent.replay=lap", "agent.replay='lap' was retired: docs/studies.md"),
         ("agent.twin_critics=true", "agent.twin_critics=True was retired"),
         ("env.route_observation=maybe", "route_observation"),
+        ("agent.collision_budget=1.0", "collision_budget must lie in [0, 1)"),
+        ("agent.collision_budget=-0.1", "collision_budget must lie in [0, 1)"),
+        ("agent.cvar_alpha=0", "cvar_alpha must lie in (0, 1]"),
+        ("agent.cvar_alpha=0.25", "cvar_alpha below 1 needs the return's quantiles"),
+        ("agent.lagrange_window=10", "lagrange_window tunes the collision budget"),
     ],
 )
 def test_a_bad_override_to_frl_train(run_cli, override, text, tmp_path):

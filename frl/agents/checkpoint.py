@@ -73,9 +73,23 @@ def spaces_record(agent: Any) -> dict[str, Any]:
 def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
     """Everything :meth:`frl.agents.DDPG.restore` needs to go on exactly: config, spaces,
     networks, optimizers, the explorer's noise and generators, the pending n-step steps,
-    counters (and the replay buffer)."""
+    counters, a collision budget's multiplier and running episode (and the replay
+    buffer)."""
     explorer = agent.explorer
     held = explorer.held_action
+    optimizers = {
+        "actor": agent.actor_optimizer.state_dict(),
+        "critic": agent.critic_optimizer.state_dict(),
+    }
+    if agent.cost_critic_optimizer is not None:
+        optimizers["cost_critic"] = agent.cost_critic_optimizer.state_dict()
+    budget = None
+    if agent.lagrangian is not None:
+        budget = {
+            "multiplier": agent.lagrangian.state_dict(),
+            "episode_cost": agent.episode_cost,
+            "episode_steps": agent.episode_steps,
+        }
     return {
         "config": agent.config.to_dict(),
         "seed": agent.seed,
@@ -84,10 +98,8 @@ def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
             name: {key: value.detach().cpu() for key, value in net.state_dict().items()}
             for name, net in agent.networks.networks().items()
         },
-        "optimizers": {
-            "actor": agent.actor_optimizer.state_dict(),
-            "critic": agent.critic_optimizer.state_dict(),
-        },
+        "optimizers": optimizers,
+        "collision_budget": budget,
         "noise": explorer.noise.state_dict(),
         "n_step": agent.writer.pending.state_dict(),
         "rngs": {
@@ -122,6 +134,12 @@ def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:
         agent.networks.load_state_dict(networks)
         agent.actor_optimizer.load_state_dict(data["optimizers"]["actor"])
         agent.critic_optimizer.load_state_dict(data["optimizers"]["critic"])
+        if agent.cost_critic_optimizer is not None:
+            agent.cost_critic_optimizer.load_state_dict(data["optimizers"]["cost_critic"])
+            budget = data["collision_budget"]
+            agent.lagrangian.load_state_dict(budget["multiplier"])
+            agent.episode_cost = float(budget["episode_cost"])
+            agent.episode_steps = int(budget["episode_steps"])
         explorer = agent.explorer
         explorer.noise.load_state_dict(data["noise"])
         agent.writer.pending.load_state_dict(data.get("n_step", {}))

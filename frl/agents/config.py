@@ -14,6 +14,7 @@ NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
 ENCODERS: tuple[str, ...] = ("flat", "vehicles")
 ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
 GUIDES: tuple[str, ...] = ("none", "gap_acceptance")
+CRITICS: tuple[str, ...] = ("expected", "quantile")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
@@ -40,7 +41,7 @@ def _is_int(value: object) -> bool:
 
 POSITIVE_INTS = (
     "buffer_size", "n_step", "batch_size", "train_freq",
-    "sparse_min_features", "sparse_capacity", "encoder_width",
+    "sparse_min_features", "sparse_capacity", "encoder_width", "quantiles", "lagrange_window",
 )  # fmt: skip
 _ANY: Callable[[float], bool] = math.isfinite
 RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] = {
@@ -53,6 +54,7 @@ RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] 
     "noise_dt": (lambda v: v > 0, _ANY, "be positive and finite"),
     "warmup_hold_steps": (lambda v: v >= 1, _ANY, "be >= 1 and finite"),
     "guide_weight": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
+    "cvar_alpha": (lambda v: v > 0, lambda v: v <= 1, "lie in (0, 1]"),
 }
 """Numeric fields: (lower check, upper check, what the message says). NaN fails both."""
 CHOICES: dict[str, tuple[object, ...]] = {
@@ -62,7 +64,10 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "encoder": ENCODERS,
     "precision": PRECISIONS,
     "sparse_input": (True, False, "auto"),
+    "critic": CRITICS,
 }
+DEFAULT_LAGRANGE_GAINS: tuple[float, float, float] = (10.0, 0.1, 0.0)
+"""The collision budget's PID gains (Kp, Ki, Kd); why these: :mod:`frl.agents.lagrange`."""
 
 
 @dataclass(frozen=True)
@@ -151,6 +156,25 @@ class DDPGConfig:
     ``bf16`` (autocast; weights, optimizer state, targets, output layers and losses stay
     float32) or ``auto`` (bf16 where the device computes it natively, else float32);
     see :mod:`frl.agents.precision`."""
+    collision_budget: float | None = None
+    """Collisions per training episode the agent may average, in [0, 1): a cost critic
+    learns the discounted collisions to come, and a Lagrange multiplier, driven by the
+    recent training collision rate against this budget, prices them in the actor's
+    objective (:mod:`frl.agents.lagrange`). None: no cost critic, the reward alone."""
+    lagrange_gains: tuple[float, ...] = DEFAULT_LAGRANGE_GAINS
+    """(Kp, Ki, Kd) of the multiplier's PID rule, per finished training episode, in reward
+    units per collision and per unit of collision rate over budget."""
+    lagrange_window: int = 50
+    """Training episodes in the collision rate that the multiplier follows."""
+    critic: str = "expected"
+    """What the reward critic learns: ``expected``, the mean return (DDPG), or
+    ``quantile``, ``quantiles`` quantiles of the return (QR-DQN's quantile Huber loss), so
+    that the actor can climb the CVaR of the return at ``cvar_alpha``."""
+    quantiles: int = 32
+    """Quantiles of the return a ``quantile`` critic learns."""
+    cvar_alpha: float = 1.0
+    """The actor climbs the mean of the worst ``cvar_alpha`` share of the return's quantiles
+    (its CVaR); 1: the mean, as DDPG; below 1 needs ``critic=quantile``."""
 
     def __post_init__(self) -> None:
         hidden = tuple(self.hidden_sizes)
@@ -191,6 +215,44 @@ class DDPGConfig:
             self.guide != "none" or self.guide_weight == 0,
             "guide_weight learns from a teacher: set guide=gap_acceptance",
         )
+        self._check_cost_options()
+
+    def _check_cost_options(self) -> None:
+        budget = self.collision_budget
+        if budget is not None:
+            number = isinstance(budget, (int, float)) and not isinstance(budget, bool)
+            _require(
+                number and 0 <= budget < 1,
+                f"collision_budget must lie in [0, 1) (collisions per episode), got {budget!r}",
+            )
+        gains = tuple(self.lagrange_gains)
+        object.__setattr__(self, "lagrange_gains", gains)
+        _require(
+            len(gains) == 3
+            and all(isinstance(g, (int, float)) and not isinstance(g, bool) for g in gains)
+            and all(math.isfinite(g) and g >= 0 for g in gains),
+            f"lagrange_gains must be three finite numbers >= 0 (Kp, Ki, Kd), got {gains!r}",
+        )
+        if budget is None:
+            for name in ("lagrange_gains", "lagrange_window"):
+                _require(
+                    getattr(self, name) == getattr(DDPGConfig, name),
+                    f"{name} tunes the collision budget: set collision_budget too",
+                )
+        if self.critic != "quantile":
+            _require(
+                self.quantiles == DDPGConfig.quantiles,
+                "quantiles is the quantile critic's: set critic=quantile too",
+            )
+            _require(
+                self.cvar_alpha == 1,
+                "cvar_alpha below 1 needs the return's quantiles: set critic=quantile",
+            )
+
+    @property
+    def costed(self) -> bool:
+        """Whether the agent learns a cost critic under a collision budget."""
+        return self.collision_budget is not None
 
     @property
     def guided(self) -> bool:
@@ -209,6 +271,7 @@ class DDPGConfig:
         """Plain-type dict (lists for tuples), safe for ``torch.load(weights_only=True)``."""
         data = asdict(self)
         data["hidden_sizes"] = list(self.hidden_sizes)
+        data["lagrange_gains"] = list(self.lagrange_gains)
         return data
 
     @classmethod
@@ -218,6 +281,7 @@ class DDPGConfig:
         retired keys (:mod:`frl.agents.retired`) at their off values are dropped, and at
         any other value raise :class:`frl.agents.retired.RetiredOptionError`."""
         data = without_retired({**FIELDS_ADDED_LATER, **data})
-        if "hidden_sizes" in data:
-            data["hidden_sizes"] = tuple(data["hidden_sizes"])
+        for name in ("hidden_sizes", "lagrange_gains"):
+            if name in data:
+                data[name] = tuple(data[name])
         return cls(**data)

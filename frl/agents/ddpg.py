@@ -28,10 +28,13 @@ from frl.agents.functional import (
     ProximalPull,
     hard_update,
     inverting_gradients_loss,
+    lower_tail_mean,
+    quantile_huber_loss,
     soft_update,
     td_target,
 )
 from frl.agents.guide import imitation_loss
+from frl.agents.lagrange import PIDLagrangian
 from frl.agents.learn import LearnCallback, learn
 from frl.agents.networks import Actor, ActorCritic, Critic, build_network, make_adam
 from frl.agents.observations import ObservationLayout
@@ -45,7 +48,7 @@ Path = str | os.PathLike[str]
 
 def is_target_key(name: str) -> bool:
     """Whether a federated-state key belongs to a target network."""
-    return name.startswith(("actor_target.", "critic_target."))
+    return name.startswith(("actor_target.", "critic_target.", "cost_critic_target."))
 
 
 class DDPG:
@@ -89,22 +92,42 @@ class DDPG:
         if init_seed is not None:
             init_seq = np.random.SeedSequence(int(init_seed))
         init = torch.Generator().manual_seed(int(init_seq.generate_state(1, np.uint64)[0]))
-        actor, critic = (
-            build_network(kind, self.obs_dim, self.action_dim, cfg, self.layout, init, self.device)
-            for kind in (Actor, Critic)
-        )
-        self.networks = nets = ActorCritic(actor, critic)
+
+        def network(kind: type[Actor] | type[Critic], outputs: int = 1) -> Any:
+            return build_network(
+                kind, self.obs_dim, self.action_dim, cfg, self.layout, init, self.device, outputs
+            )
+
+        actor = network(Actor)
+        critic = network(Critic, cfg.quantiles if cfg.critic == "quantile" else 1)
+        # Built last, so that the actor's and critic's initial weights do not depend on it.
+        cost_critic = network(Critic) if cfg.costed else None
+        self.networks = nets = ActorCritic(actor, critic, cost_critic)
         self.actor, self.critic = nets.actor, nets.critic
         self.actor_target, self.critic_target = nets.actor_target, nets.critic_target
         self.actor_optimizer = make_adam(list(actor.parameters()), cfg.actor_lr, self.device)
         self.critic_optimizer = make_adam(list(critic.parameters()), cfg.critic_lr, self.device)
+        self.cost_critic_optimizer = (
+            None
+            if cost_critic is None
+            else make_adam(list(cost_critic.parameters()), cfg.critic_lr, self.device)
+        )
+        """The cost critic's Adam, at the reward critic's rate; None without a budget."""
+        self.lagrangian = (
+            PIDLagrangian(cfg.collision_budget, cfg.lagrange_gains, cfg.lagrange_window)
+            if cfg.collision_budget is not None
+            else None
+        )
+        """The collision budget's multiplier (:mod:`frl.agents.lagrange`); None without."""
+        self.episode_cost, self.episode_steps = 0.0, 0
+        """The running training episode's collisions and steps (what the budget counts)."""
         rng = np.random.default_rng
         self.explorer = Explorer(cfg, self.action_dim, rng(noise_seq), rng(warmup_seq))
         # Compact storage whenever the observation is large, even for a dense network.
         compact = cfg.sparse_input is True or self.obs_dim >= cfg.sparse_min_features
         self.buffer = ReplayBuffer(
             cfg.buffer_size, self.obs_shape, self.action_dim, rng(buffer_seq), sparse=compact,
-            sparse_width=cfg.sparse_capacity, guided=cfg.guided,
+            sparse_width=cfg.sparse_capacity, guided=cfg.guided, costed=cfg.costed,
         )  # fmt: skip
         self.teacher = Teacher(cfg.guide, self.layout, self.scale) if cfg.guided else None
         self.writer = TransitionWriter(self.buffer, cfg.n_step, cfg.gamma, self.teacher)
@@ -185,19 +208,35 @@ class DDPG:
 
     def episode_start(self) -> None:
         """Call after every ``env.reset()``: the previous episode's pending n-step steps,
-        cut off by a time limit, bootstrap from its last state; the noise restarts."""
+        cut off by a time limit, bootstrap from its last state, and count for the collision
+        budget; the noise restarts."""
         self.writer.end_episode()
+        self._end_training_episode()
         self.explorer.episode_start()
 
     def observe(
-        self, obs: Any, action: Any, reward: float, next_obs: Any, terminated: bool
-    ) -> None:
+        self, obs: Any, action: Any, reward: float, next_obs: Any, terminated: bool,
+        cost: float = 0.0,
+    ) -> None:  # fmt: skip
         """Store a transition. Pass gymnasium's ``terminated``, not ``terminated or truncated``:
-        a time-limit cut-off is not a terminal state and must still bootstrap."""
+        a time-limit cut-off is not a terminal state and must still bootstrap. ``cost``: the
+        step's collisions (``info["cost"]`` of frl's environment), which a collision budget
+        counts and its cost critic learns; other agents ignore it."""
         flat, next_flat = self.layout.flat(obs), self.layout.flat(next_obs)
         unit = self.scale.to_unit(action)
-        self.writer.write(flat, unit, float(reward), next_flat, bool(terminated))
+        cost = float(cost) if self.lagrangian is not None else 0.0
+        self.writer.write(flat, unit, float(reward), next_flat, bool(terminated), cost)
         self.num_env_steps += 1
+        self.episode_cost += cost
+        self.episode_steps += 1
+        if terminated:
+            self._end_training_episode()
+
+    def _end_training_episode(self) -> None:
+        """The running episode ended: the multiplier follows its collisions."""
+        if self.episode_steps and self.lagrangian is not None:
+            self.lagrangian.episode_end(self.episode_cost)
+        self.episode_cost, self.episode_steps = 0.0, 0
 
     # ---------------------------------------------------------------- learning
     def update(self) -> dict[str, float]:
@@ -213,27 +252,47 @@ class DDPG:
         slots = self.buffer.sample_slots(cfg.batch_size)
         stats = self._train_step(self.buffer.gather(slots, self.sparse, self.device))
         self.num_updates += 1
-        return {name: value.item() for name, value in stats.items()}
+        losses = {name: value.item() for name, value in stats.items()}
+        if self.lagrangian is not None:
+            losses["lagrange_multiplier"] = self.lagrangian.multiplier
+            losses["collision_rate"] = self.lagrangian.collision_rate
+        return losses
 
     def _train_step(self, batch: Batch) -> dict[str, Tensor]:
         """One DDPG update (Lillicrap et al. 2016, Algorithm 1) on a sampled batch."""
         cfg, nets = self.config, self.networks
-        # Critic: squared error to the n-step TD target of the target networks. Q-values
-        # are float32 (precision.float32_layer), and so are the target and the losses.
+        # Critic: squared error to the n-step TD target of the target networks (for a
+        # quantile critic, the quantile Huber loss to the target's quantiles). Q-values are
+        # float32 (precision.float32_layer), and so are the targets and the losses.
         with self._autocast(), torch.no_grad():
-            next_q = nets.critic_target(batch.next_obs, nets.actor_target(batch.next_obs))
+            next_actions = nets.actor_target(batch.next_obs)
+            next_q = nets.critic_target(batch.next_obs, next_actions)
         with self._autocast():
             q = nets.critic(batch.obs, batch.actions)
         discount = cfg.gamma**batch.horizons if cfg.n_step > 1 else cfg.gamma
-        target_q = td_target(batch.rewards, batch.terminated, next_q, discount)
-        critic_loss = F.mse_loss(q, target_q)
+        if cfg.critic == "quantile":
+            per_sample = discount.unsqueeze(-1) if isinstance(discount, Tensor) else discount
+            target_q = td_target(
+                batch.rewards.unsqueeze(-1), batch.terminated.unsqueeze(-1), next_q, per_sample
+            )
+            critic_loss = quantile_huber_loss(q, target_q)
+        else:
+            target_q = td_target(batch.rewards, batch.terminated, next_q, discount)
+            critic_loss = F.mse_loss(q, target_q)
         self._descend(self.critic_optimizer, critic_loss)
         q = q.detach()
         stats = {"critic_loss": critic_loss.detach(), "q_mean": q.mean()}
-        stats["td_error"] = (q - target_q).abs().mean()
-        # Actor: up the critic's gradient at its own action. The critic is frozen, so
+        if cfg.critic == "quantile":
+            stats["td_error"] = (q.mean(-1) - target_q.mean(-1)).abs().mean()
+        else:
+            stats["td_error"] = (q - target_q).abs().mean()
+        if nets.cost_critic is not None:
+            stats.update(self._cost_critic_step(batch, next_actions, discount))
+        # Actor: up the critic's gradient at its own action. The critics are frozen, so
         # backward computes dQ/da and no critic weight gradient.
-        nets.critic.requires_grad_(False)
+        frozen = [net for net in (nets.critic, nets.cost_critic) if net is not None]
+        for net in frozen:
+            net.requires_grad_(False)
         try:
             with self._autocast():
                 preactivation = nets.actor.preactivation(batch.obs)
@@ -245,22 +304,55 @@ class DDPG:
                 stats["imitation_loss"] = imitation.detach()
             self._descend(self.actor_optimizer, actor_loss)
         finally:
-            nets.critic.requires_grad_(True)
+            for net in frozen:
+                net.requires_grad_(True)
         # Targets: follow the online networks by Polyak averaging.
         soft_update(nets.target_parameters(), nets.online_parameters(), cfg.tau)
         return stats
 
-    def _actor_loss(self, batch: Batch, preactivation: Tensor) -> tuple[Tensor, Tensor]:
-        """From the actor's unbounded action ``p``: the loss, and Q at the action taken.
-        ``tanh``: -Q(s, tanh(p)); else inverting gradients."""
-        cfg, critic = self.config, self.networks.critic
-        if cfg.actor_update == "tanh":
+    def _cost_critic_step(
+        self, batch: Batch, next_actions: Tensor, discount: float | Tensor
+    ) -> dict[str, Tensor]:
+        """The cost critic's update: squared error to the n-step TD target of the
+        discounted collisions to come, bootstrapped from its own target network."""
+        nets = self.networks
+        assert nets.cost_critic is not None and nets.cost_critic_target is not None
+        assert batch.costs is not None
+        with self._autocast(), torch.no_grad():
+            next_cost = nets.cost_critic_target(batch.next_obs, next_actions)
+        with self._autocast():
+            cost_q = nets.cost_critic(batch.obs, batch.actions)
+        target = td_target(batch.costs, batch.terminated, next_cost, discount)
+        loss = F.mse_loss(cost_q, target)
+        assert self.cost_critic_optimizer is not None
+        self._descend(self.cost_critic_optimizer, loss)
+        return {"cost_critic_loss": loss.detach(), "cost_q_mean": cost_q.detach().mean()}
+
+    def _objective(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
+        """What the actor climbs at ``action``, per sample: Q_r (the CVaR of the return's
+        quantiles below ``cvar_alpha`` = 1), less lambda Q_c under a collision budget,
+        divided by 1 + lambda so that its scale stays that of a return as lambda grows
+        (Stooke et al. 2020; OmniSafe's DDPG-Lag)."""
+        cfg, nets = self.config, self.networks
+        with self._autocast():
+            value = nets.critic(obs, action)
+        if cfg.critic == "quantile":
+            value = lower_tail_mean(value, cfg.cvar_alpha)
+        if nets.cost_critic is not None and self.lagrangian is not None:
+            price = self.lagrangian.multiplier
             with self._autocast():
-                q_policy = critic(batch.obs, torch.tanh(preactivation))
+                cost = nets.cost_critic(obs, action)
+            value = (value - price * cost) / (1.0 + price)
+        return value
+
+    def _actor_loss(self, batch: Batch, preactivation: Tensor) -> tuple[Tensor, Tensor]:
+        """From the actor's unbounded action ``p``: the loss, and the objective at the
+        action taken. ``tanh``: -objective(s, tanh(p)); else inverting gradients."""
+        if self.config.actor_update == "tanh":
+            q_policy = self._objective(batch.obs, torch.tanh(preactivation))
             return -q_policy.mean(), q_policy
         action = preactivation.detach().clamp(-1.0, 1.0).requires_grad_(True)
-        with self._autocast():
-            q_policy = critic(batch.obs, action)
+        q_policy = self._objective(batch.obs, action)
         (dq_da,) = torch.autograd.grad(q_policy.sum(), action)
         return inverting_gradients_loss(preactivation, dq_da), q_policy
 
@@ -271,16 +363,23 @@ class DDPG:
         self.proximal.add_gradient(optimizer)
         optimizer.step()
 
-    def critic_values(self, observations: Any, actions: Any) -> np.ndarray:
+    def critic_values(self, observations: Any, actions: Any, cost: bool = False) -> np.ndarray:
         """Q(s, a) of the online critic for a batch of observations (an array, or for a
-        Dict space a sequence of them) and env-unit actions."""
+        Dict space a sequence of them) and env-unit actions: the mean return (a quantile
+        critic's quantiles averaged), or with ``cost`` the cost critic's discounted
+        collisions to come."""
+        if cost and self.networks.cost_critic is None:
+            raise ValueError("this agent has no cost critic (DDPGConfig.collision_budget)")
+        critic = self.networks.cost_critic if cost else self.critic
         if self.layout.parts is not None and not isinstance(observations, np.ndarray):
             observations = [self.layout.flat(o) for o in observations]
         x = torch.from_numpy(np.asarray(observations, dtype=np.float32).reshape(-1, self.obs_dim))
         unit = self.scale.to_unit(np.asarray(actions).reshape(len(x), -1), batch=True)
         inputs = SparseRows.from_dense(x).to(self.device) if self.sparse else x.to(self.device)
         with torch.no_grad(), self._autocast():
-            q = self.critic(inputs, torch.from_numpy(unit.astype(np.float32)).to(self.device))
+            q = critic(inputs, torch.from_numpy(unit.astype(np.float32)).to(self.device))
+        if q.dim() > 1:
+            q = q.mean(dim=-1)
         return q.reshape(-1).double().cpu().numpy()
 
     # ---------------------------------------------------------- federated state
@@ -304,7 +403,9 @@ class DDPG:
         """FedProx (Li et al. 2020): from now on each update adds mu/2 ||w - w_anchor||^2 to
         both losses, w_anchor the online networks as they are now (the global model just
         loaded). ``mu`` = 0 removes the term."""
-        pairs = ((self.actor_optimizer, self.actor), (self.critic_optimizer, self.critic))
+        pairs = [(self.actor_optimizer, self.actor), (self.critic_optimizer, self.critic)]
+        if self.cost_critic_optimizer is not None:
+            pairs.append((self.cost_critic_optimizer, self.networks.cost_critic))
         self.proximal.anchor(mu, dict(pairs))
 
     def sync_targets(self) -> None:

@@ -1,8 +1,9 @@
 """Pure maths of DDPG: TD target, the actor's inverting-gradients surrogate, target-network
-updates, FedProx's pull, discounted returns."""
+updates, FedProx's pull, discounted returns, and the quantile critic's loss and CVaR."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -52,6 +53,44 @@ def inverting_gradients_loss(preactivation: Tensor, dq_da: Tensor) -> Tensor:
     room = preactivation.detach()
     scale = torch.where(dq_da > 0, (1.0 - room) / 2.0, (room + 1.0) / 2.0)
     return -(dq_da * scale * preactivation).sum() / preactivation.shape[0]
+
+
+def quantile_midpoints(count: int) -> Tensor:
+    """The quantile levels a quantile critic's outputs stand for: (2i + 1) / (2 count)."""
+    return (torch.arange(count, dtype=torch.float32) + 0.5) / count
+
+
+def quantile_huber_loss(quantiles: Tensor, targets: Tensor, kappa: float = 1.0) -> Tensor:
+    """QR-DQN's loss (Dabney et al. 2018): ``quantiles`` (batch, N) of Z(s, a) regressed
+    on every sample of ``targets`` (batch, M) of r + gamma Z'(s', a').
+
+    Each pair (i, j) has ``u = target_j - quantile_i`` and weight ``|tau_i - 1{u < 0}|``
+    on the Huber loss of u (threshold ``kappa``) divided by kappa; summed over i, averaged
+    over j and the batch. Quantile i then settles where a share tau_i of targets lies below.
+    """
+    if quantiles.dim() != 2 or targets.dim() != 2 or quantiles.shape[0] != targets.shape[0]:
+        raise ValueError(
+            f"expected (batch, N) quantiles and (batch, M) targets, got "
+            f"{tuple(quantiles.shape)} and {tuple(targets.shape)}"
+        )
+    taus = quantile_midpoints(quantiles.shape[1]).to(quantiles.device)
+    u = targets.unsqueeze(1) - quantiles.unsqueeze(2)  # (batch, N, M)
+    absolute = u.abs()
+    huber = torch.where(absolute <= kappa, 0.5 * u.square(), kappa * (absolute - 0.5 * kappa))
+    weight = (taus.view(1, -1, 1) - (u.detach() < 0).float()).abs()
+    return (weight * huber / kappa).sum(dim=1).mean()
+
+
+def lower_tail_mean(quantiles: Tensor, alpha: float) -> Tensor:
+    """CVaR at level ``alpha`` of a return given by equally weighted ``quantiles`` (batch, N):
+    the mean of its worst ceil(alpha N) quantiles (all of them at alpha = 1: the mean)."""
+    if not 0 < alpha <= 1:
+        raise ValueError(f"alpha must lie in (0, 1], got {alpha!r}")
+    count = quantiles.shape[-1]
+    worst = max(1, math.ceil(alpha * count - 1e-9))
+    if worst == count:
+        return quantiles.mean(dim=-1)
+    return torch.sort(quantiles, dim=-1).values[..., :worst].mean(dim=-1)
 
 
 class ProximalPull:

@@ -34,8 +34,9 @@ class Learner(Protocol):
 
     def act(self, obs: Any, explore: bool = True) -> np.ndarray: ...
     def observe(
-        self, obs: Any, action: Any, reward: float, next_obs: Any, terminated: bool
-    ) -> None: ...
+        self, obs: Any, action: Any, reward: float, next_obs: Any, terminated: bool,
+        cost: float = 0.0,
+    ) -> None: ...  # fmt: skip
     def update(self) -> dict[str, float]: ...
     def episode_start(self) -> None: ...
 
@@ -54,10 +55,12 @@ class Step(NamedTuple):
 
 
 def training_step(agent: Learner, env: Any, obs: Any) -> Step:
-    """Act with exploration, step ``env``, observe the transition, update if due."""
+    """Act with exploration, step ``env``, observe the transition (with the step's cost,
+    ``info["cost"]``, where the environment reports one), update if due."""
     action = agent.act(obs)
     next_obs, reward, terminated, truncated, info = env.step(action)
-    agent.observe(obs, action, float(reward), next_obs, terminated)
+    cost = float(info.get("cost", 0.0)) if isinstance(info, dict) else 0.0
+    agent.observe(obs, action, float(reward), next_obs, terminated, cost=cost)
     return Step(action, next_obs, float(reward), terminated, truncated, info, agent.update())
 
 

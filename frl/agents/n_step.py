@@ -24,6 +24,8 @@ class Transition(NamedTuple):
     terminated: bool
     horizon: int
     """Steps between ``obs`` and ``next_obs``: the target bootstraps with gamma**horizon."""
+    cost: float = 0.0
+    """The discounted cost sum over ``horizon`` steps (collisions: a collision budget)."""
 
 
 class NStepAccumulator:
@@ -41,12 +43,12 @@ class NStepAccumulator:
 
     def push(
         self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
-        terminated: bool, horizon: int = 1,
+        terminated: bool, horizon: int = 1, cost: float = 0.0,
     ) -> list[Transition]:  # fmt: skip
-        """Add one transition of ``horizon`` environment steps (its ``reward`` discounted
-        inside already); the n-step transitions that are now complete."""
+        """Add one transition of ``horizon`` environment steps (its ``reward`` and
+        ``cost`` discounted inside already); the n-step transitions now complete."""
         self._pending.append(
-            Transition(obs, action, float(reward), next_obs, terminated, int(horizon))
+            Transition(obs, action, float(reward), next_obs, terminated, int(horizon), float(cost))
         )
         if terminated:
             return self._drain(terminated=True)
@@ -67,12 +69,13 @@ class NStepAccumulator:
         return [self._combine(steps[i:], terminated) for i in range(len(steps))]
 
     def _combine(self, steps: list[Transition], terminated: bool) -> Transition:
-        reward, elapsed = 0.0, 0
+        reward, cost, elapsed = 0.0, 0.0, 0
         for step in steps:
             reward += self.gamma**elapsed * step.reward
+            cost += self.gamma**elapsed * step.cost
             elapsed += step.horizon
         first, last = steps[0], steps[-1]
-        return Transition(first.obs, first.action, reward, last.next_obs, terminated, elapsed)
+        return Transition(first.obs, first.action, reward, last.next_obs, terminated, elapsed, cost)
 
     def state_dict(self) -> dict[str, Any]:
         """The pending steps as tensors (checkpoints load with ``weights_only=True``)."""
@@ -87,11 +90,20 @@ class NStepAccumulator:
             "next_obs": torch.from_numpy(np.stack([s.next_obs for s in steps]).astype(np.float32)),
             "terminated": torch.tensor([s.terminated for s in steps]),
             "horizons": torch.tensor([s.horizon for s in steps]),
-        }
+        } | self._costs(steps)
+
+    @staticmethod
+    def _costs(steps: list[Transition]) -> dict[str, torch.Tensor]:
+        """Only where a step has a cost: an agent without a collision budget writes the
+        checkpoint it wrote before cost critics."""
+        if not any(s.cost for s in steps):
+            return {}
+        return {"costs": torch.tensor([s.cost for s in steps], dtype=torch.float64)}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         count = int(state.get("count", 0))
         horizons = state.get("horizons")  # absent in checkpoints of one-step pushes
+        costs = state.get("costs")  # absent where no pending step has a cost
         self._pending = deque(
             Transition(
                 state["obs"][i].numpy(),
@@ -100,6 +112,7 @@ class NStepAccumulator:
                 state["next_obs"][i].numpy(),
                 bool(state["terminated"][i]),
                 1 if horizons is None else int(horizons[i]),
+                0.0 if costs is None else float(costs[i]),
             )
             for i in range(count)
         )

@@ -95,7 +95,8 @@ class Critic(nn.Module):
 
     The action joins the observation (or the encoder's output) at the first layer
     (``layers.0.extra_weight``), which computes ``Linear(in + action_dim, h0)`` on
-    ``cat([x, action])``.
+    ``cat([x, action])``. With ``outputs`` > 1 it gives that many values per sample:
+    the quantiles of the return (``DDPGConfig.critic=quantile``).
     """
 
     def __init__(
@@ -104,50 +105,78 @@ class Critic(nn.Module):
         action_dim: int,
         hidden_sizes: Sequence[int],
         encoder: nn.Module | None = None,
+        outputs: int = 1,
     ) -> None:
         super().__init__()
         self.encoder = encoder
+        self.outputs = outputs
         in_features = obs_dim if encoder is None else encoder.out_features
         first = InputLinear(in_features, hidden_sizes[0], extra_features=action_dim)
-        self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, 1))
+        self.layers = nn.ModuleList(_hidden_stack(first, hidden_sizes, outputs))
 
     def forward(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
-        """Q-values, float32 (also under autocast)."""
+        """Q-values (batch,), or (batch, outputs) where ``outputs`` > 1; float32 (also
+        under autocast)."""
         x = obs if self.encoder is None else self.encoder(obs)
         # In place: addmm's backward needs only its inputs.
         x = torch.relu_(self.layers[0](x, action))
         for layer in self.layers[1:-1]:
             x = torch.relu_(layer(x))
-        return float32_layer(self.layers[-1], x).squeeze(-1)
+        values = float32_layer(self.layers[-1], x)
+        return values.squeeze(-1) if self.outputs == 1 else values
 
 
 NETWORK_NAMES: tuple[str, ...] = ("actor", "critic", "actor_target", "critic_target")
 """The networks of :class:`ActorCritic`, the first part of its state-dict keys."""
+COST_NETWORK_NAMES: tuple[str, ...] = ("cost_critic", "cost_critic_target")
+"""The cost critic and its target, where the agent has a collision budget."""
+TARGET_NAMES: tuple[str, ...] = ("actor_target", "critic_target", "cost_critic_target")
 
 
 class ActorCritic(nn.Module):
-    """DDPG's four networks: actor, critic and their slowly following targets.
+    """DDPG's four networks: actor, critic and their slowly following targets; with a
+    ``cost_critic`` (a collision budget) that and its target too.
 
     Its ``state_dict()`` keys are ``actor.layers.0.weight``, ``critic_target.layers.4.bias``
     and so on: what FedAvg averages, checkpoints hold and the Flower wire carries.
     """
 
-    def __init__(self, actor: Actor, critic: Critic) -> None:
+    def __init__(self, actor: Actor, critic: Critic, cost_critic: Critic | None = None) -> None:
         super().__init__()
         self.actor = actor
         self.critic = critic
         self.actor_target = copy.deepcopy(actor).requires_grad_(False)
         self.critic_target = copy.deepcopy(critic).requires_grad_(False)
+        self.cost_critic = cost_critic
+        self.cost_critic_target = (
+            None if cost_critic is None else copy.deepcopy(cost_critic).requires_grad_(False)
+        )
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The networks this agent has, online before target within each kind."""
+        return NETWORK_NAMES + (COST_NETWORK_NAMES if self.cost_critic is not None else ())
 
     def online_parameters(self) -> list[nn.Parameter]:
-        return [*self.actor.parameters(), *self.critic.parameters()]
+        return [
+            parameter
+            for name in self.names
+            if name not in TARGET_NAMES
+            for parameter in getattr(self, name).parameters()
+        ]
 
     def target_parameters(self) -> list[nn.Parameter]:
-        return [*self.actor_target.parameters(), *self.critic_target.parameters()]
+        """In the order of :meth:`online_parameters`, each target beside its network."""
+        return [
+            parameter
+            for name in self.names
+            if name not in TARGET_NAMES
+            for parameter in getattr(self, f"{name}_target").parameters()
+        ]
 
     def networks(self) -> dict[str, nn.Module]:
-        """The four networks by name, in :data:`NETWORK_NAMES`' order."""
-        return {name: getattr(self, name) for name in NETWORK_NAMES}
+        """The networks by name: :data:`NETWORK_NAMES`, then the cost critic's."""
+        return {name: getattr(self, name) for name in self.names}
 
     def cpu_copy(self) -> dict[str, Tensor]:
         """Detached contiguous CPU copies of every tensor of ``state_dict()``."""
@@ -186,8 +215,10 @@ class ActorCritic(nn.Module):
 def build_network(
     kind: type[Actor] | type[Critic], obs_dim: int, action_dim: int, config: DDPGConfig,
     layout: ObservationLayout, generator: torch.Generator, device: torch.device,
+    outputs: int = 1,
 ) -> Actor | Critic:  # fmt: skip
-    """An actor or critic as ``config`` describes it, initialised from ``generator`` alone.
+    """An actor or critic as ``config`` describes it, initialised from ``generator`` alone;
+    a critic with ``outputs`` values per sample (quantiles) where asked.
 
     Built on the meta device so that nn.Linear's own init never draws from the global
     torch RNG; then materialised and initialised from ``generator`` only.
@@ -195,7 +226,11 @@ def build_network(
     encoder = None
     if config.encoder == "vehicles":
         encoder = VehicleSetEncoder(layout.grid_shape, config.encoder_width, layout.extra_features)
-    options = {"output": "clip"} if kind is Actor and config.actor_update != "tanh" else {}
+    options: dict[str, object] = {}
+    if kind is Actor and config.actor_update != "tanh":
+        options["output"] = "clip"
+    if kind is Critic and outputs > 1:
+        options["outputs"] = outputs
     with torch.device("meta"):
         network = kind(obs_dim, action_dim, config.hidden_sizes, encoder, **options)
     network = network.to_empty(device="cpu")

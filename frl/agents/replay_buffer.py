@@ -39,6 +39,8 @@ class Batch(NamedTuple):
     """Steps from ``obs`` to ``next_obs`` (n-step transitions; 1 for one-step ones)."""
     guide_actions: Tensor | None = None
     """A teacher's actions at ``obs`` (normalised), where the buffer stores them."""
+    costs: Tensor | None = None
+    """The discounted cost sums (collisions), where the buffer stores them."""
 
 
 def committed_when_written(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
@@ -150,6 +152,7 @@ class ReplayBuffer:
         sparse_width: initial non-zeros per stored observation (grows on demand).
         guided: store a teacher's action at ``obs`` with every transition
             (:attr:`frl.agents.DDPGConfig.guide`).
+        costed: store each transition's cost (a collision budget's cost critic learns it).
     """
 
     def __init__(
@@ -161,6 +164,7 @@ class ReplayBuffer:
         sparse: bool = False,
         sparse_width: int = 64,
         guided: bool = False,
+        costed: bool = False,
     ) -> None:
         if capacity <= 0:
             raise ValueError(f"capacity must be positive, got {capacity}")
@@ -184,6 +188,8 @@ class ReplayBuffer:
         self.guide_actions = committed_when_written(
             (capacity if guided else 0, action_dim), np.float32
         )
+        self.costed = costed
+        self.costs = committed_when_written((capacity if costed else 0,), np.float32)
         self.pos = 0
         self.size = 0
 
@@ -195,7 +201,7 @@ class ReplayBuffer:
         """Bytes held by the storage arrays (allocated for the full capacity)."""
         obs_bytes = self._obs.nbytes + self._next_obs.nbytes
         scalars = self.actions.nbytes + self.rewards.nbytes + self.terminated.nbytes
-        return obs_bytes + scalars + self.guide_actions.nbytes
+        return obs_bytes + scalars + self.guide_actions.nbytes + self.costs.nbytes
 
     def add(
         self,
@@ -206,10 +212,12 @@ class ReplayBuffer:
         terminated: bool,
         horizon: int = 1,
         guide_action: np.ndarray | None = None,
+        cost: float = 0.0,
     ) -> None:
         """Store one transition; ``terminated`` must exclude time-limit truncation.
         ``horizon``: steps from ``obs`` to ``next_obs`` (an n-step transition's k).
-        A ``guided`` buffer needs the teacher's action at ``obs``."""
+        A ``guided`` buffer needs the teacher's action at ``obs``; a ``costed`` one keeps
+        ``cost``."""
         flat_obs = np.asarray(obs, dtype=np.float32).reshape(-1)
         flat_next = np.asarray(next_obs, dtype=np.float32).reshape(-1)
         if flat_obs.size != self.num_features or flat_next.size != self.num_features:
@@ -232,6 +240,8 @@ class ReplayBuffer:
             if guide_action is None:
                 raise ValueError("a guided buffer needs the teacher's action of every transition")
             self.guide_actions[slot] = np.asarray(guide_action, np.float32).reshape(-1)
+        if self.costed:
+            self.costs[slot] = cost
         self.pos = (slot + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
@@ -270,6 +280,7 @@ class ReplayBuffer:
             torch.from_numpy(self.terminated[slots]),
             torch.from_numpy(self.horizons[slots]),
             torch.from_numpy(self.guide_actions[slots]) if self.guided else None,
+            torch.from_numpy(self.costs[slots]) if self.costed else None,
         )
         if torch.device(device).type == "cpu":
             return batch
@@ -277,8 +288,10 @@ class ReplayBuffer:
 
     def _per_transition(self) -> tuple[str, ...]:
         """The arrays with one row per transition besides the observations."""
-        return ("actions", "rewards", "terminated", "horizons") + (
-            ("guide_actions",) if self.guided else ()
+        return (
+            ("actions", "rewards", "terminated", "horizons")
+            + (("guide_actions",) if self.guided else ())
+            + (("costs",) if self.costed else ())
         )
 
     def state_dict(self) -> dict[str, Any]:

@@ -64,11 +64,11 @@ class TransitionWriter:
 
     def write(
         self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
-        terminated: bool,
+        terminated: bool, cost: float = 0.0,
     ) -> None:  # fmt: skip
         """One step (``action`` normalised). ``terminated`` excludes time-limit cut-offs,
-        which must still bootstrap."""
-        for transition in self.pending.push(obs, action, reward, next_obs, terminated):
+        which must still bootstrap; ``cost``: the step's collisions, where counted."""
+        for transition in self.pending.push(obs, action, reward, next_obs, terminated, 1, cost):
             self._store(*transition)
 
     def end_episode(self) -> None:
@@ -79,7 +79,7 @@ class TransitionWriter:
 
     def _store(
         self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
-        terminated: bool, horizon: int,
+        terminated: bool, horizon: int, cost: float,
     ) -> None:  # fmt: skip
         label = None if self.teacher is None else self.teacher(obs)
-        self.buffer.add(obs, action, reward, next_obs, terminated, horizon, label)
+        self.buffer.add(obs, action, reward, next_obs, terminated, horizon, label, cost)

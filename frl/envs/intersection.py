@@ -338,6 +338,7 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         return {
             "task": self._task,
             "collision": collision,
+            "cost": float(collision),
             "arrived": arrived,
             "travel_time_steps": self._steps,
             "ego_speed": self._ego_speed,

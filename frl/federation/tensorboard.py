@@ -19,6 +19,9 @@ curves of runs with different schemes, intervals or client counts line up.
 | ``client{i}_{task}/episode_stopped_steps`` | steps of that episode the ego stood still |
 | ``client{i}_{task}/episode_critic_bias`` | mean Q(s_t, a_t) - G_t over a terminated episode |
 | ``client{i}_{task}/critic_loss`` ``actor_loss`` ``q_mean`` ``td_error`` | windows of 100 steps |
+| ``client{i}_{task}/lagrange_multiplier`` ``collision_rate`` ``cost_q_mean``
+  ``cost_critic_loss`` | a collision budget's lambda, the training collision rate it
+  follows, and the cost critic's mean Q_c and loss; windows of 100 steps |
 | ``client{i}_{task}/action``, ``policy_action`` | histograms, each round: actions driven,
   and the deterministic policy's before noise |
 | ``client{i}_{task}/action_at_bounds``, ``policy_action_at_bounds`` | share at +-1
