@@ -12,6 +12,7 @@ Every module that reads or writes a run asks this one (docs/training.md shows th
 | ``models/`` | the clients | final models and ``index.json`` (task -> file, or files) |
 | ``results.json`` | the entry point, evaluation | training, communication and test tables |
 | ``tb/`` | the roadside unit, evaluation | TensorBoard events |
+| ``figure.png`` | ``python -m frl.train`` (:mod:`frl.plot`) | training and test, drawn |
 | ``flower/`` | the Flower backend | SuperLink, SuperNode and ``flwr run`` logs |
 
 Only :mod:`frl.fileio` sits below this module, so anything in frl may import it.
@@ -42,6 +43,7 @@ CHECKPOINT_DIR = "checkpoints"
 MODELS_DIR = "models"
 MODEL_INDEX_FILE = "index.json"
 RESULTS_FILE = "results.json"
+FIGURE_FILE = "figure.png"
 TB_DIR = "tb"
 FLOWER_LOG_DIR = "flower"
 """Logs of the SuperLink, the SuperNodes and ``flwr run``."""

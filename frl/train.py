@@ -17,6 +17,7 @@ and exit code 2, before anything runs.
 from __future__ import annotations
 
 import contextlib
+import logging
 import sys
 import traceback
 
@@ -31,6 +32,8 @@ from frl.train_config import ConfigError, one_line_error, register_configs, vali
 from frl.training import train
 
 __all__ = ["main", "train"]
+
+log = logging.getLogger("frl.train")  # also when run as __main__
 
 CONFIG_MODULE = "frl.conf"
 CONFIG_SEARCH_PATH = f"pkg://{CONFIG_MODULE}"
@@ -65,10 +68,24 @@ def main() -> None:
         except ClientFailure as failure:
             print(f"frl.train: {failure_summary(failure)}", file=sys.stderr)
             raise SystemExit(1) from None
+        draw_figure(results["run_dir"])
         evaluation = results.get("evaluation")
         return evaluation["average"]["average_reward"] if evaluation else None
 
     hydra_main()
+
+
+def draw_figure(run_dir: str) -> None:
+    """The run's picture, ``RUN_DIR/figure.png`` (:mod:`frl.plot`). A figure that cannot be
+    drawn is a warning: the run and its results are already saved."""
+    from frl.plot import draw_run_figure
+
+    try:
+        path = draw_run_figure(run_dir)
+    except Exception as error:  # a picture must not fail a finished run
+        log.warning("no figure for %s: %s", run_dir, one_line_error(error))
+    else:
+        log.info("figure: %s", path)
 
 
 FAILURE_LOG = "failure.log"

@@ -589,6 +589,13 @@ def load_run_config(run_dir: str | Path) -> DictConfig:
     return merged  # type: ignore[return-value]
 
 
+def complete_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
+    """A saved run config as today's schema reads it: migrated
+    (:func:`migrate_saved_config`), every key present. Two runs of one setting, saved by
+    different frl versions, compare equal."""
+    return _complete(migrate_saved_config(saved))
+
+
 def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     """A run config saved by an earlier frl, with the settings it actually ran with.
 

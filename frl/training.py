@@ -70,7 +70,8 @@ def budget_line(plan: FederationPlan, agent: DDPGConfig) -> str:
 def train(
     cfg: DictConfig | dict[str, Any], on_round_end: RoundHook | None = None
 ) -> dict[str, Any]:
-    """Train, checkpoint, test and write ``results.json``; return the results.
+    """Train, checkpoint, test and write ``results.json``; return the results, with the
+    run directory (``run_dir``) beside them.
 
     Args:
         cfg: a config composed from ``frl/conf`` (or any mapping of the schema's keys).
@@ -93,7 +94,7 @@ def train(
         raise ConfigError(str(error)) from None
     if resuming and _is_auto(cfg) and rundir.is_finished(run_dir):
         log.info("skipping %s: the run there has finished (resume=auto)", run_dir)
-        return read_json(run_dir / rundir.RESULTS_FILE)
+        return {**read_json(run_dir / rundir.RESULTS_FILE), "run_dir": os.fspath(run_dir)}
     if resuming:
         saved = load_run_config(run_dir)
         _warn_about_changes(saved, cfg)
@@ -158,7 +159,7 @@ def train(
     rundir.write_results(run_dir, results)
     _log_hparams(run_dir, settings, results)
     log.info("run directory: %s", run_dir)
-    return results
+    return {**results, "run_dir": os.fspath(run_dir)}
 
 
 def train_rounds(

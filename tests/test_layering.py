@@ -29,7 +29,15 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("frl.train_config",),
     ("frl.flower", "frl.evaluate"),
     ("frl.training",),
-    ("frl.train", "frl.demo", "frl.report", "frl.reproduce", "frl.side_by_side", "frl.launchers"),
+    (
+        "frl.train",
+        "frl.demo",
+        "frl.report",
+        "frl.reproduce",
+        "frl.side_by_side",
+        "frl.launchers",
+        "frl.plot",
+    ),
 )
 """Bottom to top; a module may import its own layer's modules and those below."""
 

@@ -205,6 +205,7 @@ def test_multirun_over_two_seeds_in_a_subprocess(tmp_path):
     for job in jobs:
         assert (job / ".hydra" / "config.yaml").exists()
         assert any((job / "tb").iterdir())
+        assert (job / "figure.png").read_bytes().startswith(b"\x89PNG")  # frl.plot's picture
     assert "step/s" not in done.stderr  # no progress bar in multirun
 
 
