@@ -52,7 +52,7 @@ def main() -> None:
     overrides = [
         "budget=paper",  # an update every step, the budget set below
         f"total_steps={args.total_steps}",
-        f"interval={args.interval}",
+        f"interval={args.interval}",  # updates, here steps: an update every step
         f"seed={args.seed}",
         "eval_episodes=0",
         "progress=false",

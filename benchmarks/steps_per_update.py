@@ -5,7 +5,7 @@ each update on 1, 2, 4 or 8 steps' worth of new data, beside the yardsticks.
         [--out runs/steps-per-update] [--data-dir DIR] [--baseline DIR] [--read-only]
         [-- OVERRIDES...]
 
-Ratio k trains ``agent.train_freq=k total_steps=10000k interval=2000k``: every vehicle
+Ratio k trains ``agent.train_freq=k total_steps=10000k interval=2000``: every vehicle
 takes 10,000 k environment steps and about 10,000 updates, 2,000 a round, as the
 paper's budget has them at k = 1 (docs/training.md, "Steps and updates"). Each run is
 resumable and tested on 100 episodes per task beside full throttle, the rule and the
@@ -52,7 +52,7 @@ def overrides_for(ratio: int) -> tuple[str, ...]:
         "federation=fedavg",
         f"agent.train_freq={ratio}",
         f"total_steps={UPDATES * ratio}",
-        f"interval={ROUND_UPDATES * ratio}",
+        f"interval={ROUND_UPDATES}",  # updates: rounds of 2,000 k steps
     )
 
 

@@ -62,7 +62,7 @@ def main() -> None:
     parser.add_argument("--from-run", type=Path, help="summarise this finished run instead")
     parser.add_argument("--budget", choices=("data", "paper"), help="default: the config's")
     parser.add_argument("--total-steps", type=int, help="default: the budget's")
-    parser.add_argument("--interval", type=int, help="default: the budget's")
+    parser.add_argument("--interval", type=int, help="updates per round; default: the budget's")
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()

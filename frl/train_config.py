@@ -166,18 +166,30 @@ FederationSchema = schema_of(
 )
 
 
+CONFIG_VERSION = 2
+"""The run config's format. 2 (since 2026-11-27): ``interval`` counts updates; 1 (a saved
+config without the key): environment steps, read by :func:`migrate_saved_config`."""
+
+
 @dataclass
 class TrainSchema:
-    """Root of ``frl/conf/config.yaml``. Budget and cadence are root keys
-    (``interval=2000``), set with ``agent.train_freq`` by the ``budget`` group: ``data``
-    (80,000 steps, 16,000 between aggregations, an update every 8 steps; the default) or
-    ``paper`` (10,000, 2,000, every step). The defaults below are the library's (paper)."""
+    """Root of ``frl/conf/config.yaml``. The budget is three keys, set by the ``budget``
+    group: ``total_steps``, the environment steps each vehicle drives; ``agent.train_freq``,
+    the environment steps per update; and ``interval``, the updates each vehicle trains
+    between two uploads (the paper's "local training epochs", Section IV.B, where a step is
+    an update). ``data`` (80,000 steps, an update every 8, interval 2,000: 5 rounds; the
+    default) and ``paper`` (10,000 steps, an update each, interval 2,000: 5 rounds) differ
+    in the data behind each update only. The defaults below are the library's (paper)."""
 
     seed: int = 0
     total_steps: int = FederationPlan.total_steps
-    """Environment steps per agent."""
+    """Environment steps per vehicle."""
     interval: int = FederationPlan.interval
-    """Environment steps per client between aggregations (FedAvg) or checkpoints (all)."""
+    """Updates per vehicle between aggregations (FedAvg) or checkpoints (all): a round is
+    ``interval * agent.train_freq`` environment steps, the first one's warm-up included."""
+    config_version: int = CONFIG_VERSION
+    """The format of this config (:data:`CONFIG_VERSION`); saved configs without it are
+    migrated."""
     eval_episodes: int = 100
     """Test episodes per task after training (Section IV.B); 0 skips evaluation. Tests
     run on the training traffic (``env.scenario``, set by the ``traffic`` group)."""
@@ -360,12 +372,18 @@ def validate(
         raise ConfigError(f"federation.threads_per_worker must be >= 0, got {threads!r}")
     cores = _check_cores(data["cores"], this_machine)
     device = check_device(data["device"]) if this_machine else data["device"]
+    if data["config_version"] != CONFIG_VERSION:
+        raise ConfigError(
+            f"config_version={data['config_version']} is not this frl's ({CONFIG_VERSION}); "
+            "saved runs are migrated when they are read"
+        )
+    interval_steps = _interval_steps(data["interval"], data["total_steps"], agent)
     try:
         plan = FederationPlan(
             scheme=federation["scheme"],
             tasks=tuple(federation["tasks"]),
             total_steps=data["total_steps"],
-            interval=data["interval"],
+            interval=interval_steps,
             targets=federation["targets"],
             weighting=federation["weighting"],
             initial_model=federation["initial_model"],
@@ -415,6 +433,23 @@ def validate(
         workers=federation["workers"],
         round_test_episodes=data["round_test_episodes"],
     )
+
+
+def _interval_steps(interval: int, total_steps: int, agent: dict[str, Any]) -> int:
+    """The environment steps of a round of ``interval`` updates, checked to make a round."""
+    train_freq = agent.get("train_freq", 1)
+    if not isinstance(train_freq, int) or isinstance(train_freq, bool) or train_freq < 1:
+        return interval  # DDPGConfig refuses it in its own words
+    if total_steps <= 0:
+        return interval * train_freq  # FederationPlan refuses it in its own words
+    slots = total_steps // train_freq if total_steps > 0 else 0
+    if not 0 < interval <= slots:
+        raise ConfigError(
+            f"interval counts the updates between two aggregations (or checkpoints) and must "
+            f"lie in [1, {slots:,}] "
+            f"(total_steps={total_steps:,} / agent.train_freq={train_freq}), got {interval!r}"
+        )
+    return interval * train_freq
 
 
 def _vehicle_envs(
@@ -589,6 +624,21 @@ def load_run_config(run_dir: str | Path) -> DictConfig:
     return merged  # type: ignore[return-value]
 
 
+def _interval_in_updates(saved: dict[str, Any]) -> dict[str, Any]:
+    agent = saved.get("agent") if isinstance(saved.get("agent"), dict) else {}
+    train_freq = agent.get("train_freq", 1)
+    interval = saved.get("interval")
+    if isinstance(interval, int) and isinstance(train_freq, int) and train_freq > 0:
+        if interval % train_freq:
+            raise ConfigError(
+                f"this run's rounds of {interval:,} environment steps are not a whole number "
+                f"of updates at agent.train_freq={train_freq}; frl now counts interval in "
+                "updates and cannot read it"
+            )
+        saved["interval"] = interval // train_freq
+    return {**saved, "config_version": CONFIG_VERSION}
+
+
 def complete_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     """A saved run config as today's schema reads it: migrated
     (:func:`migrate_saved_config`), every key present. Two runs of one setting, saved by
@@ -609,8 +659,12 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
       (:data:`frl.agents.config.FIELDS_ADDED_LATER`), where today's default has both.
     - Retired agent options (:mod:`frl.agents.retired`) at their off values are dropped;
       a run that used one is refused in one line.
+    - No ``config_version`` (format 1): ``interval`` counted environment steps; it becomes
+      the updates of those steps (``interval / agent.train_freq``), the same rounds.
     """
     saved = dict(saved)
+    if "config_version" not in saved:
+        saved = _interval_in_updates(saved)
     if isinstance(saved.get("agent"), dict):
         try:
             saved["agent"] = without_retired({**FIELDS_ADDED_LATER, **saved["agent"]})

@@ -51,19 +51,24 @@ machine's share, taken from the new config."""
 
 def budget_line(plan: FederationPlan, agent: DDPGConfig) -> str:
     """What a run trains, in one line: its vehicles, each one's environment steps and
-    updates, and its rounds. Updates are counted as due (every ``train_freq``-th step from
-    ``learning_starts`` on); the first waits until the buffer holds a batch."""
-    updates = updates_due(plan.total_steps, agent.train_freq, agent.learning_starts)
-    every = "every step" if agent.train_freq == 1 else f"one every {agent.train_freq} steps"
+    updates, and its rounds of ``interval`` updates, the first one's warm-up stated. Updates
+    are counted as due (every ``train_freq``-th step from ``learning_starts`` on); the first
+    waits until the buffer holds a batch."""
+    freq, starts = agent.train_freq, agent.learning_starts
+    updates = updates_due(plan.total_steps, freq, starts)
+    first_round = updates_due(plan.round_end_step(0), freq, starts)
+    every = "an update every step" if freq == 1 else f"an update every {freq} steps"
     vehicles = plan.fleet_size
     # A fleet names its distinct tasks once, not each of its vehicles.
     tasks = ", ".join(plan.client_tasks if vehicles <= 6 else plan.test_tasks)
     rounds = "models averaged" if plan.aggregates else "checkpoints"
     return (
-        f"{plan.scheme}, {vehicles} vehicle{'s' if vehicles > 1 else ''} ({tasks}), each "
-        f"{plan.total_steps:,} environment steps and {updates:,} updates ({every} "
-        f"after the first {agent.learning_starts:,}); {rounds} every {plan.interval:,} "
-        f"steps, {plan.num_rounds} rounds"
+        f"{plan.scheme}, {vehicles} vehicle{'s' if vehicles > 1 else ''} ({tasks}): "
+        f"{plan.num_rounds} rounds of {plan.interval // freq:,} updates per vehicle "
+        f"({plan.interval:,} environment steps; {rounds} after each), "
+        f"{plan.total_steps:,} environment steps and {updates:,} updates per vehicle, {every}; "
+        f"none in the first {starts:,} steps (the warm-up), so the first round has "
+        f"{first_round:,}"
     )
 
 
@@ -240,6 +245,7 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
         "backend": settings.backend,
         "seed": settings.seed,
         "interval": plan.interval,
+        "interval_updates": plan.interval // settings.agent.train_freq,
         "total_steps": plan.total_steps,
         "tasks": list(plan.test_tasks),
         "clients": [spec.name for spec in settings.client_specs()],
@@ -368,7 +374,7 @@ def _log_hparams(run_dir: Path, settings: TrainSettings, results: dict[str, Any]
     plan, agent = settings.plan, settings.agent
     hparams = {
         "scheme": plan.scheme,
-        "interval": plan.interval,
+        "interval": plan.interval // agent.train_freq,  # updates, as the config counts
         "total_steps": plan.total_steps,
         "seed": settings.seed,
         "targets": plan.targets,

@@ -25,7 +25,7 @@ from frl.train_config import ConfigError, validate
 # (but for the deployment test below).
 pytestmark = pytest.mark.xdist_group("ray-and-flower")
 
-TWO_ROUNDS = ["total_steps=80", "interval=40", "eval_episodes=0"]
+TWO_ROUNDS = ["total_steps=80", "interval=20", "eval_episodes=0"]  # 40 steps a round
 FLOWER = ["federation.backend=flower"]
 
 
@@ -91,7 +91,7 @@ FLEET = [
     "+federation.strategy_params={server_momentum: 0.5}",
     "federation.vehicle_arrival_period_steps=[25,50,25,50]",
     "total_steps=120",
-    "interval=40",
+    "interval=20",  # updates: 40 steps a round at the tiny agent's train_freq=2
     "eval_episodes=0",
     "cores=1",
 ]

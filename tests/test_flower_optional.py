@@ -29,7 +29,7 @@ def test_the_core_runs_without_flower_and_backend_flower_names_the_extra(tmp_pat
             else:
                 raise AssertionError("backend=flower validated without Flower")
             results = train(compose_config({str(tmp_path / "run")!r},
-                ["total_steps=20", "interval=20", "eval_episodes=0", "federation.tasks=[left]"]))
+                ["total_steps=20", "interval=10", "eval_episodes=0", "federation.tasks=[left]"]))
             assert results["rounds"] == 1, results
             assert not any(name.startswith(("flwr.", "ray.")) for name in sys.modules)
             print("core ok")

@@ -194,3 +194,17 @@ def strongly_connected(graph: dict[str, set[str]]) -> list[list[str]]:
         if node not in index:
             visit(node)
     return components
+
+
+def test_docs_layout_lists_every_layer_as_the_code_has_it():
+    """docs/layout.md's table names each layer's modules exactly as LAYERS does, so the
+    page cannot fall behind the package."""
+    page = (PACKAGE_DIR.parent / "docs" / "layout.md").read_text()
+    documented: dict[int, set[str]] = {}
+    for line in page.splitlines():
+        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0].isdigit():
+            names = {name.rstrip("/") for name in cells[1].replace("`", "").split(", ")}
+            documented[int(cells[0])] = {f"frl.{name}" for name in names}
+    expected = {index: set(layer) - {"frl"} for index, layer in enumerate(LAYERS)}
+    assert documented == expected

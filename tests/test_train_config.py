@@ -2,23 +2,25 @@
 
 import multiprocessing
 import re
+import shutil
 from pathlib import Path
 
 import pytest
+import yaml
 from hydra.errors import ConfigCompositionException
 from omegaconf.errors import ValidationError
 from train_helpers import CONF_DIR, compose_config
 
 from frl.federation.workers import available_cores
 from frl.train import train
-from frl.train_config import ConfigError, validate
+from frl.train_config import ConfigError, load_run_config, migrate_saved_config, validate
 
 
 def test_the_default_config_is_fedavg_on_the_three_tasks():
     settings = validate(compose_config(None))
     default = validate(compose_config(None, []))
     assert settings == default
-    cfg = compose_config(None, ["total_steps=10000", "interval=2000"])
+    cfg = compose_config(None, ["total_steps=10000", "interval=1000"])  # every 2 steps
     plan = validate(cfg).plan
     assert (plan.scheme, plan.num_rounds, plan.tasks) == (
         "fedavg",
@@ -36,17 +38,23 @@ def test_the_main_command_trains_eight_steps_per_update_and_the_editions_one():
     settings = full([])
     assert (settings.plan.total_steps, settings.plan.interval) == (80_000, 16_000)
     assert settings.agent.train_freq == 8
+    # The command frl is known by is the default run: interval counts updates.
+    assert full(["federation=fedavg", "interval=2000"]) == settings
     line = budget_line(settings.plan, settings.agent)
-    assert "each 80,000 environment steps and 9,876 updates (one every 8 steps" in line
-    assert line.endswith("models averaged every 16,000 steps, 5 rounds")
+    assert line.startswith(
+        "fedavg, 3 vehicles (left, straight, right): 5 rounds of 2,000 updates per vehicle "
+        "(16,000 environment steps; models averaged after each), 80,000 environment steps "
+        "and 9,876 updates per vehicle, an update every 8 steps; none in the first 1,000 "
+        "steps (the warm-up), so the first round has 1,876"
+    )
     paper = full(["budget=paper"])
     assert (paper.plan.total_steps, paper.plan.interval, paper.agent.train_freq) == (
         10_000, 2_000, 1,
     )  # fmt: skip
     assert paper.agent == full(["agent.train_freq=1"]).agent
-    assert "each 10,000 environment steps and 9,001 updates (every step" in budget_line(
-        paper.plan, paper.agent
-    )
+    paper_line = budget_line(paper.plan, paper.agent)
+    assert "5 rounds of 2,000 updates per vehicle (2,000 environment steps" in paper_line
+    assert "10,000 environment steps and 9,001 updates per vehicle" in paper_line
     for preset in ("fig3", "fig4", "fig4-guided", "fig6", "quick", "study-learning"):
         edition = full([f"+experiment={preset}"])
         assert edition.agent.train_freq == 1, preset
@@ -115,9 +123,10 @@ def test_the_shared_initial_model_depends_on_the_run_seed():
     ("overrides", "message"),
     [
         (["federation.scheme=fedsgd"], "unknown federation scheme 'fedsgd'"),
-        (["interval=0"], r"interval must be .* got 0"),
-        (["interval=-5"], "interval must be"),
-        (["interval=1000"], r"total_steps=240\], got 1000"),
+        (["interval=0"], r"interval counts the updates .* got 0"),
+        (["interval=-5"], r"lie in \[1, 120\] \(total_steps=240 / agent.train_freq=2\), got -5"),
+        (["interval=121"], r"lie in \[1, 120\] .* got 121"),
+        (["interval=61", "agent.train_freq=4"], r"lie in \[1, 60\] .* got 61"),
         (["federation.tasks=[left,uturn]"], "unknown task 'uturn'"),
         (["reward.name=fancy"], "unknown reward 'fancy'"),
         (["federation.backend=grpc"], "unknown federation.backend 'grpc'"),
@@ -215,9 +224,49 @@ def test_the_run_says_what_it_trains_and_counts_the_updates_an_agent_takes(
     for _ in range(60):
         agent.observe(np.zeros(2), np.zeros(2), 0.0, np.zeros(2), False)
         agent.update()
-    line = budget_line(FederationPlan(total_steps=60, interval=20), config)
-    assert f"each 60 environment steps and {agent.num_updates} updates" in line
-    assert line.startswith("fedavg, 3 vehicles (left, straight, right)")
-    assert line.endswith("models averaged every 20 steps, 3 rounds")
+    round_steps = 20 - 20 % train_freq
+    plan = FederationPlan(total_steps=60, interval=round_steps)
+    line = budget_line(plan, config)
+    assert f"60 environment steps and {agent.num_updates} updates per vehicle" in line
+    assert line.startswith(
+        f"fedavg, 3 vehicles (left, straight, right): {plan.num_rounds} rounds of "
+        f"{round_steps // train_freq} updates per vehicle ({round_steps} environment steps"
+    )
+    first = DDPG(box, box, config)
+    for _ in range(round_steps):
+        first.observe(np.zeros(2), np.zeros(2), 0.0, np.zeros(2), False)
+        first.update()
+    assert line.endswith(f"so the first round has {first.num_updates}")
     fleet = budget_line(FederationPlan(total_steps=60, interval=20, vehicles_per_task=3), config)
-    assert fleet.startswith("fedavg, 9 vehicles (left, straight, right), each 60 environment")
+    assert fleet.startswith("fedavg, 9 vehicles (left, straight, right): ")
+
+
+STUDY_DATA = Path(CONF_DIR).parents[1] / "docs" / "results" / "data"
+
+
+@pytest.mark.parametrize(
+    ("run", "rounds_of"),
+    [("study-data/tf8/fedavg-seed0", 16_000), ("fig6/interval1000-seed0", 1_000)],
+)
+def test_runs_saved_with_interval_in_environment_steps_read_as_the_same_rounds(
+    run, rounds_of, tmp_path
+):
+    saved = yaml.safe_load((STUDY_DATA / run / "config.yaml").read_text())
+    assert "config_version" not in saved and saved["interval"] == rounds_of
+    shutil.copy(STUDY_DATA / run / "config.yaml", tmp_path / "config.yaml")
+    settings = validate(load_run_config(tmp_path), this_machine=False)
+    assert settings.plan.interval == rounds_of  # environment steps, as it trained
+    migrated = migrate_saved_config(saved)
+    assert migrated["interval"] * settings.agent.train_freq == rounds_of
+    assert migrated["config_version"] == 2
+
+
+def test_a_saved_interval_that_is_no_whole_number_of_updates_is_refused(tmp_path):
+    saved = yaml.safe_load((STUDY_DATA / "study-data/tf8/fedavg-seed0/config.yaml").read_text())
+    with pytest.raises(ConfigError, match=r"not a whole number of updates at agent\.train_freq=8"):
+        migrate_saved_config({**saved, "interval": 1_001})
+
+
+def test_a_config_version_of_another_frl_is_refused():
+    with pytest.raises(ConfigError, match="config_version=1 is not this frl's"):
+        validate(compose_config(None, ["config_version=1"]))

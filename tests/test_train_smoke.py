@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from train_helpers import compose_config
 
@@ -142,6 +143,12 @@ def test_resume_after_a_kill_finishes_the_budget(tmp_path):
     assert multiprocessing.active_children() == []
     state = json.loads((tmp_path / "run" / "state.json").read_text())
     assert state["completed_rounds"] == 2 and not state["training_finished"]
+    # Saved as frl saved configs before interval counted updates (format 1): rounds of 80
+    # environment steps, no config_version. It resumes as the same rounds.
+    config_path = tmp_path / "run" / "config.yaml"
+    saved = yaml.safe_load(config_path.read_text())
+    assert (saved.pop("config_version"), saved["interval"]) == (2, 40)
+    config_path.write_text(yaml.safe_dump({**saved, "interval": 80}))
 
     rounds_seen = []
     results = train(  # on another share of the cores: the resuming machine's
@@ -150,7 +157,8 @@ def test_resume_after_a_kill_finishes_the_budget(tmp_path):
     )
 
     assert rounds_seen == [3]  # only the missing round ran
-    assert "cores: 1\n" in (tmp_path / "run" / "config.yaml").read_text()
+    resaved = yaml.safe_load(config_path.read_text())
+    assert (resaved["cores"], resaved["interval"], resaved["config_version"]) == (1, 40, 2)
     assert results["rounds"] == 3
     assert results["training"]["steps_per_client"] == 240
     assert results["communication"]["uploads"] == 2 * 3

@@ -22,6 +22,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 TINY_RUN = [
     "federation=central",
+    "budget=paper",  # an update every step: rounds of 20 updates are 20 steps
     "total_steps=40",
     "interval=20",
     "eval_episodes=1",

@@ -15,7 +15,7 @@ CONF_DIR = str(Path(__file__).resolve().parents[1] / "frl" / "conf")
 
 TINY_OVERRIDES = [
     "total_steps=240",
-    "interval=80",
+    "interval=40",
     "agent.hidden_sizes=[16,16]",
     "agent.batch_size=16",
     "agent.learning_starts=40",
@@ -26,7 +26,7 @@ TINY_OVERRIDES = [
     "eval_episodes=2",
     "progress=false",
 ]
-"""3 rounds of 80 steps per client, episodes of at most 50 steps: every client crosses
+"""3 rounds of 40 updates (80 steps) per client, episodes of at most 50 steps: every client crosses
 at least one episode end and two aggregations. An update every second step (100 a
 client) halves the time the tiny runs spend in updates, the most of their training."""
 
