@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
 from gymnasium import spaces
 from omegaconf import OmegaConf
 
@@ -378,7 +379,10 @@ def parse_options(parser: argparse.ArgumentParser, items: list[str]) -> dict:
         if key not in defaults or not value:
             parser.error(f"--option {item!r}: expected KEY=VALUE with a DDPGConfig field")
         kind = type(defaults[key])
-        options[key] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
+        if defaults[key] is None:  # an option off by default (collision_budget): its YAML value
+            options[key] = yaml.safe_load(value)
+        else:
+            options[key] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
     return options
 
 

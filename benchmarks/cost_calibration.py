@@ -143,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for run_dir in args.run_dirs:
         for task, calibration in calibrate(run_dir, tasks, args.episodes).items():
-            rows.append((run_dir.name, task, calibration))
+            rows.append((f"{run_dir.parent.name}/{run_dir.name}", task, calibration))
     print_tables(rows)
     return 0
 
