@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from frl.agents.learn import EPISODE_WINDOW
 from frl.fileio import write_bytes_atomic
 from frl.report.runs import RunDataError, RunRecord, load_run
 from frl.run_directory import FIGURE_FILE
@@ -41,7 +42,6 @@ from frl.train_config import ConfigError, complete_saved_config
 
 BENCHMARK_RETURN = 6.0
 """The paper's benchmark return in Fig. 4 (Section IV.B)."""
-EPISODE_WINDOW = 100
 CURVE_POINTS = 400
 TASK_ORDER = ("left", "straight", "right", "average")
 YARDSTICKS = {"full_throttle": "full throttle", "gap_acceptance": "the rule", "oracle": "oracle"}
