@@ -36,7 +36,14 @@ from frl.agents.functional import (
 from frl.agents.guide import imitation_loss
 from frl.agents.lagrange import PIDLagrangian
 from frl.agents.learn import LearnCallback, learn
-from frl.agents.networks import Actor, ActorCritic, Critic, build_network, make_adam
+from frl.agents.networks import (
+    TARGET_NAMES,
+    Actor,
+    ActorCritic,
+    Critic,
+    build_network,
+    make_adam,
+)
 from frl.agents.observations import ObservationLayout
 from frl.agents.precision import autocast, resolve_precision
 from frl.agents.replay_buffer import Batch, ReplayBuffer
@@ -48,7 +55,7 @@ Path = str | os.PathLike[str]
 
 def is_target_key(name: str) -> bool:
     """Whether a federated-state key belongs to a target network."""
-    return name.startswith(("actor_target.", "critic_target.", "cost_critic_target."))
+    return name.startswith(tuple(f"{target}." for target in TARGET_NAMES))
 
 
 class DDPG:
@@ -115,7 +122,7 @@ class DDPG:
         """The cost critic's Adam, at the reward critic's rate; None without a budget."""
         self.lagrangian = (
             PIDLagrangian(cfg.collision_budget, cfg.lagrange_gains, cfg.lagrange_window)
-            if cfg.collision_budget is not None
+            if cfg.costed and cfg.collision_budget is not None
             else None
         )
         """The collision budget's multiplier (:mod:`frl.agents.lagrange`); None without."""
