@@ -125,8 +125,8 @@ class VehicleHost:
         name = self.client.name
         rounds = sorted(p for p in directory.parent.glob("round_*") if p.name < directory.name)
         for old in rounds[:-1]:
-            for suffix in (".pt", ".json"):
-                (old / f"{name}{suffix}").unlink(missing_ok=True)
+            for stale in old.glob(f"{name}.*"):  # model, counters and drive
+                stale.unlink(missing_ok=True)
             with contextlib.suppress(OSError):
                 old.rmdir()
 

@@ -17,7 +17,7 @@ from frl.envs.config import (
     traffic_name,
     traffic_preset,
 )
-from frl.envs.intersection import IntersectionEnv
+from frl.envs.intersection import EnvSnapshot, IntersectionEnv
 from frl.envs.sumo_backend import SumoError
 
 ENV_ID = "frl/Intersection-v0"
@@ -31,6 +31,7 @@ __all__ = [
     "TASK_CHOICES",
     "TRAFFIC_PRESETS",
     "EnvConfig",
+    "EnvSnapshot",
     "GridConfig",
     "IntersectionEnv",
     "RewardConfig",

@@ -47,6 +47,33 @@ class EnvSnapshot:
     travelled: float = 0.0
     """Metres the ego has driven in this episode (the route observation's distance)."""
 
+    def to_record(self) -> tuple[dict[str, Any], np.ndarray]:
+        """JSON-ready fields and the speed commands (float64), for a file with no pickle."""
+        fields = {
+            "sumo_seed": self.sumo_seed,
+            "ego_insertions": [[index, task] for index, task in self.ego_insertions],
+            "task": self.task,
+            "steps": self.steps,
+            "done": self.done,
+            "rng_state": self.rng_state,
+            "travelled": self.travelled,  # a float's JSON text reads back to the same float
+        }
+        return fields, np.asarray(self.ego_speed_commands, np.float64)
+
+    @classmethod
+    def from_record(cls, fields: dict[str, Any], speed_commands: np.ndarray) -> EnvSnapshot:
+        """The snapshot :meth:`to_record` wrote."""
+        return cls(
+            sumo_seed=int(fields["sumo_seed"]),
+            ego_speed_commands=tuple(float(v) for v in np.asarray(speed_commands, np.float64)),
+            ego_insertions=tuple((int(i), str(t)) for i, t in fields["ego_insertions"]),
+            task=str(fields["task"]),
+            steps=int(fields["steps"]),
+            done=bool(fields["done"]),
+            rng_state=fields["rng_state"],
+            travelled=float(fields["travelled"]),
+        )
+
 
 class IntersectionEnv(gym.Env[Any, np.ndarray]):
     """An agent car crosses a four-way intersection with broken lights among aggressive humans.

@@ -20,12 +20,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from gymnasium import spaces
 from torch import Tensor
 
 from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
 from frl.agents.learn import training_step
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
+from frl.federation.drive import Drive, drive_path, read_drive, write_drive
 from frl.fileio import write_json_atomic
 from frl.policies import install_guide
 
@@ -303,9 +305,11 @@ class VehicleClient:
     # ------------------------------------------------------------- checkpoints
     def save(self, directory: str | os.PathLike[str]) -> None:
         """Write this vehicle's full state for resume: agent with replay buffer, optimizer
-        moments, noise and generators, plus the client's counters. Stays on the vehicle."""
+        moments, noise and generators, the client's counters and its drive (the
+        environment and the episode in progress). Stays on the vehicle."""
         directory = Path(directory)
         self.agent.save(directory / f"{self.name}.pt", include_buffer=True)
+        write_drive(drive_path(directory, self.name), self._drive())
         write_json_atomic(
             directory / f"{self.name}.json",
             {
@@ -316,9 +320,12 @@ class VehicleClient:
             },
         )
 
-    def load(self, directory: str | os.PathLike[str]) -> None:
-        """Restore :meth:`save`. The episode that was running at save time is not restored
-        (SUMO's state is not saved): the next step starts a new simulation."""
+    def load(self, directory: str | os.PathLike[str]) -> bool:
+        """Restore :meth:`save`; the vehicle goes on driving exactly where it stood.
+
+        Returns False for a checkpoint written before vehicles saved their drive: the
+        episode that was running then is dropped and the next step starts a new simulation.
+        """
         directory = Path(directory)
         self.agent.restore(directory / f"{self.name}.pt")
         if self.spec.proximal_mu:
@@ -328,8 +335,51 @@ class VehicleClient:
         self._restarts = int(state["restarts"])
         self._episodes_total = int(state["episodes_total"])
         self._last_return = state["last_return"]
-        self._observation = None
-        self._needs_restart = True
+        path = drive_path(directory, self.name)
+        if not path.exists():
+            self._observation = None
+            self._needs_restart = True
+            return False
+        self._resume_drive(read_drive(path))
+        return True
+
+    def _drive(self) -> Drive:
+        """Where this vehicle stands: its simulation and the episode in progress."""
+        space = self.env.observation_space
+        running = self._observation is not None
+        observations = [spaces.flatten(space, o) for o in self._episode_observations]
+        return Drive(
+            snapshot=None if self._needs_restart else self.env.snapshot(),
+            observation=spaces.flatten(space, self._observation) if running else None,
+            episode_observations=(
+                np.stack(observations)
+                if running and observations
+                else np.empty((0, spaces.flatdim(space)), np.float32)
+            ),
+            episode_actions=(
+                np.stack(self._episode_actions)
+                if running and self._episode_actions
+                else np.empty((0, *self.env.action_space.shape), np.float32)
+            ),
+            episode_rewards=list(self._episode_rewards) if running else [],
+            episode_speeds=list(self._episode_speeds) if running else [],
+        )
+
+    def _resume_drive(self, drive: Drive) -> None:
+        """Put the simulation and the running episode back as :meth:`_drive` saw them."""
+        self._needs_restart = drive.snapshot is None
+        if drive.snapshot is not None:
+            self.env.restore(drive.snapshot)
+        space = self.env.observation_space
+        self._observation = (
+            None if drive.observation is None else spaces.unflatten(space, drive.observation)
+        )
+        self._episode_observations = [
+            spaces.unflatten(space, row) for row in drive.episode_observations
+        ]
+        self._episode_actions = list(drive.episode_actions)
+        self._episode_rewards = drive.episode_rewards
+        self._episode_speeds = drive.episode_speeds
 
     def save_model(self, path: str | os.PathLike[str]) -> None:
         """Write the model alone (no replay buffer), loadable with ``DDPG.from_checkpoint``."""

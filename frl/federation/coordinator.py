@@ -15,13 +15,14 @@ One round (Section III.C, Fig. 2):
    the round-test seeds is committed with it (the per-round test curve).
 
 A run killed at any point resumes from the last committed round with nothing before it
-lost; the episode that was running at the kill is dropped, since SUMO's state is not
-checkpointed (the next step starts a fresh simulation with a new seed).
+lost, and ends as the run never killed: each vehicle's checkpoint holds its drive
+(:mod:`frl.federation.drive`), so the episode running at the commit goes on.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import shutil
 import time
 from pathlib import Path
@@ -35,6 +36,7 @@ from frl.agents.checkpoint import read_checkpoint, write_checkpoint
 from frl.agents.ddpg import is_target_key
 from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool
+from frl.federation.drive import drive_path
 from frl.federation.fedavg import state_nbytes
 from frl.federation.plan import FederationPlan, round_sample
 from frl.federation.round_tests import RoundTester
@@ -42,6 +44,8 @@ from frl.federation.strategies import Aggregator, ServerStrategy, StrategySpec
 from frl.federation.tensorboard import EPISODE_WINDOW, TrainingLogger, resume_purge_step
 from frl.fileio import write_json_atomic
 from frl.run_directory import RoundHook, RunState
+
+log = logging.getLogger("frl.train")
 
 ROUND_TEST_PREFIX = "eval/round"
 """TensorBoard prefix of the per-round test curve: ``eval/round/{task or average}/{metric}``."""
@@ -96,8 +100,16 @@ class Coordinator:
     def run(self, state: RunState) -> RunState:
         """Train from ``state`` (fresh or loaded) to the end of the budget; return the state."""
         if state.checkpoint is not None and not state.training_finished:
+            began = time.perf_counter()
             self.clients.load(self.run_dir / state.checkpoint)
             self._load_server_state(self.run_dir / state.checkpoint)
+            log.info(
+                "round %d's checkpoint restored in %.1f s (agents, buffers and each "
+                "vehicle's simulation replayed to where it stood)",
+                state.completed_rounds,
+                time.perf_counter() - began,
+            )
+            self._say_if_drives_are_missing(self.run_dir / state.checkpoint, state)
         if (
             self.plan.aggregates
             and self.strategy.spec.needs_global_model
@@ -119,6 +131,17 @@ class Coordinator:
         finally:
             progress.close()
         return state
+
+    def _say_if_drives_are_missing(self, checkpoint: Path, state: RunState) -> None:
+        """One line where the vehicles' checkpoints here predate their drive."""
+        saved_here = [n for n in self.clients.names if (checkpoint / f"{n}.json").exists()]
+        if any(not drive_path(checkpoint, name).exists() for name in saved_here):
+            log.info(
+                "round %d's checkpoint was written before vehicles saved their drive: the "
+                "episodes running then are dropped, so this run goes on in new simulations "
+                "and will not end as the run never stopped",
+                state.completed_rounds,
+            )
 
     def _round(
         self, round_index: int, state: RunState, step_rewards: np.ndarray, progress: _RunProgress

@@ -1,0 +1,55 @@
+"""Kills a run's whole process group at a chosen moment (tests/test_kill_and_resume.py).
+
+Imported at the start of every Python process of a run whose ``PYTHONPATH`` holds this
+folder (the run, its forkserver and workers). ``FRL_KILL_AT=POINT:N`` sends SIGKILL to
+the process group at the N-th time a process reaches POINT:
+
+- ``step``: a vehicle is about to take a training step (mid-round);
+- ``drive``: a vehicle is about to write its drive, its model already written
+  (mid-checkpoint-write: the round's directory is half written);
+- ``commit``: the roadside unit has written the round's step rewards and is about to
+  commit the round in ``state.json``;
+- ``restore``: a resumed vehicle is about to replay its simulation.
+"""
+
+import os
+
+_KILL_AT = os.environ.get("FRL_KILL_AT")
+
+if _KILL_AT:
+    import signal
+
+    import frl.envs.intersection
+    import frl.federation.client
+    import frl.run_directory
+
+    _point, _count = _KILL_AT.split(":")
+    _reached = 0
+
+    def _counting(function):
+        def reach(*args, **kwargs):
+            global _reached
+            _reached += 1
+            if _reached == int(_count):
+                os.killpg(os.getpgid(0), signal.SIGKILL)
+            return function(*args, **kwargs)
+
+        return reach
+
+    if _point == "step":
+        frl.federation.client.training_step = _counting(frl.federation.client.training_step)
+    elif _point == "drive":
+        frl.federation.client.write_drive = _counting(frl.federation.client.write_drive)
+    elif _point == "commit":
+        _write_step_rewards = frl.run_directory.write_step_rewards
+
+        def _commit_next(*args, **kwargs):
+            _write_step_rewards(*args, **kwargs)
+            _counting(lambda: None)()
+
+        frl.run_directory.write_step_rewards = _commit_next
+    elif _point == "restore":
+        restore = frl.envs.intersection.IntersectionEnv.restore
+        frl.envs.intersection.IntersectionEnv.restore = _counting(restore)
+    else:
+        raise ValueError(f"FRL_KILL_AT: unknown point {_point!r}")
