@@ -20,6 +20,8 @@ import contextlib
 import logging
 import sys
 import traceback
+from pathlib import Path
+from typing import Any
 
 import yaml
 from omegaconf import DictConfig
@@ -27,7 +29,7 @@ from omegaconf import DictConfig
 from frl.agents.retired import RETIRED_OPTIONS, RetiredOptionError, without_retired
 from frl.federation.workers import ClientFailure
 from frl.run_directory import RunDirectoryError, check_can_make
-from frl.run_directory import resolve as resolve_run_directory
+from frl.run_opening import open_run
 from frl.train_config import ConfigError, one_line_error, register_configs, validate
 from frl.training import train
 
@@ -177,8 +179,7 @@ def override_error(argv: list[str]) -> str | None:
             try:
                 full = compose(config_name="config", overrides=overrides, return_hydra_config=True)
                 cfg = OmegaConf.masked_copy(full, [key for key in full if key != "hydra"])
-                validate(cfg, this_machine=launcher == "basic")
-                _check_resumed_directory(cfg.resume)
+                _check_opens(cfg, full, multirun, this_machine=launcher == "basic")
                 if launcher == "basic":  # a cluster's jobs make their directories there
                     hydra_dir = full.hydra.sweep.dir if multirun else full.hydra.run.dir
                     for path in (hydra_dir, None if multirun else cfg.run_dir):
@@ -191,11 +192,20 @@ def override_error(argv: list[str]) -> str | None:
     return None
 
 
-def _check_resumed_directory(resume: object) -> None:
-    """``resume=RUN_DIR`` must name a readable run, checked before Hydra makes a directory
-    of its own; ``true``, ``false`` and ``auto`` are resolved later."""
-    if isinstance(resume, str) and resume.lower() not in ("true", "false", "auto"):
-        resolve_run_directory(resume, configured=None, default=None)
+def _check_opens(cfg: Any, full: Any, multirun: bool, this_machine: bool) -> None:
+    """Open the run as :func:`frl.training.train` will (:func:`frl.run_opening.open_run`),
+    before Hydra makes a directory: a bad value, a resume with nothing to continue or a
+    run already there is refused now. A sweep's jobs get directories of Hydra's choosing
+    when ``run_dir`` is unset; their configs are validated, and an explicit
+    ``resume=RUN_DIR`` checked."""
+    if multirun and not cfg.run_dir and not _names_a_directory(cfg.resume):
+        validate(cfg, this_machine=this_machine)
+        return
+    open_run(cfg, Path(full.hydra.run.dir), this_machine=this_machine, quiet=True)
+
+
+def _names_a_directory(resume: object) -> bool:
+    return isinstance(resume, str) and resume.lower() not in ("true", "false", "auto")
 
 
 if __name__ == "__main__":

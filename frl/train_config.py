@@ -27,8 +27,8 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from frl.agents import DDPGConfig
-from frl.agents.config import FIELDS_ADDED_LATER
-from frl.agents.retired import RetiredOptionError, without_retired
+from frl.agents.config import agent_fields_as_run
+from frl.agents.retired import RetiredOptionError
 from frl.envs import EnvConfig, RewardConfig
 from frl.envs.config import REWARD_NAMES, TRAFFIC_PRESETS
 from frl.federation.client import ClientSpec
@@ -655,10 +655,10 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
       on ``env.scenario``. Every run saved with it tested on its training density, so the
       key is dropped; one that differs cannot be re-tested as it was, and is refused.
     - No ``yardsticks``: none were tested; re-testing such a run adds today's default.
-    - An ``agent`` without n-step targets or held warm-up actions ran without them
-      (:data:`frl.agents.config.FIELDS_ADDED_LATER`), where today's default has both.
-    - Retired agent options (:mod:`frl.agents.retired`) at their off values are dropped;
-      a run that used one is refused in one line.
+    - The ``agent`` as it ran (:func:`frl.agents.config.agent_fields_as_run`): without
+      n-step targets or held warm-up actions where it lacks them, today's default having
+      both; retired options at their off values dropped, a run that used one refused in
+      one line.
     - No ``config_version`` (format 1): ``interval`` counted environment steps; it becomes
       the updates of those steps (``interval / agent.train_freq``), the same rounds.
     """
@@ -667,7 +667,7 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
         saved = _interval_in_updates(saved)
     if isinstance(saved.get("agent"), dict):
         try:
-            saved["agent"] = without_retired({**FIELDS_ADDED_LATER, **saved["agent"]})
+            saved["agent"] = agent_fields_as_run(saved["agent"])
         except RetiredOptionError as error:
             raise ConfigError(str(error)) from None
     env = dict(saved.get("env") or {})

@@ -33,8 +33,9 @@ from frl.federation.tensorboard import (
 from frl.federation.workers import ClientFailure
 from frl.fileio import read_json, write_json_atomic
 from frl.provenance import versions
-from frl.run_directory import RoundHook, RunDirectoryError, RunState
-from frl.train_config import ConfigError, TrainSettings, load_run_config, validate
+from frl.run_directory import RoundHook, RunState
+from frl.run_opening import open_run
+from frl.train_config import TrainSettings
 
 log = logging.getLogger("frl.train")
 
@@ -44,9 +45,6 @@ ROUND_TEST_SEEDS_DEFINITION = (
 )
 FINAL_REWARD_FRACTION = 0.1
 """``final_step_reward`` averages ``train/step_reward`` over this last share of the run."""
-_VOLATILE_KEYS = ("progress", "resume", "run_dir", "cores")
-"""Keys that may differ between a run and its resumption; ``cores`` is the resuming
-machine's share, taken from the new config."""
 
 
 def budget_line(plan: FederationPlan, agent: DDPGConfig) -> str:
@@ -90,25 +88,15 @@ def train(
             ``run_dir`` and ``completed_rounds`` say what ``resume=`` continues from.
     """
     job_started = time.perf_counter()
-    settings = validate(cfg)
-    try:
-        run_dir, resuming = rundir.resolve(
-            _get(cfg, "resume", False), _get(cfg, "run_dir"), _hydra_output_dir()
-        )
-    except RunDirectoryError as error:
-        raise ConfigError(str(error)) from None
-    if resuming and _is_auto(cfg) and rundir.is_finished(run_dir):
+    opened = open_run(cfg, _hydra_output_dir())
+    run_dir, resuming = opened.run_dir, opened.status == "resume"
+    if opened.status == "finished":
         log.info("skipping %s: the run there has finished (resume=auto)", run_dir)
         return {**read_json(run_dir / rundir.RESULTS_FILE), "run_dir": os.fspath(run_dir)}
+    settings, to_save = opened.settings, opened.config
+    assert settings is not None and to_save is not None
     if resuming:
-        saved = load_run_config(run_dir)
-        _warn_about_changes(saved, cfg)
-        saved.cores = _get(cfg, "cores", 0)
-        settings = validate(saved)
-        resolved: Any = saved
         log.info("resuming %s", run_dir)
-    else:
-        resolved = cfg
     progress = bool(_get(cfg, "progress", True)) and not _is_multirun()
     precision = precision_report(settings.agent.precision, settings.device)
     log.info(
@@ -121,12 +109,6 @@ def train(
     log.info("training: %s", budget_line(settings.plan, settings.agent))
 
     run_dir.mkdir(parents=True, exist_ok=True)
-    to_save = (
-        OmegaConf.to_container(resolved, resolve=True)
-        if isinstance(resolved, DictConfig)
-        else dict(resolved)
-    )
-    to_save = {**to_save, "run_dir": os.fspath(run_dir), "resume": False}  # type: ignore[dict-item]
     OmegaConf.save(OmegaConf.create(to_save), run_dir / rundir.CONFIG_FILE)
     write_json_atomic(run_dir / rundir.VERSIONS_FILE, versions())
 
@@ -325,11 +307,6 @@ def _get(cfg: Any, key: str, default: Any = None) -> Any:
     return cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
 
 
-def _is_auto(cfg: Any) -> bool:
-    resume = _get(cfg, "resume", False)
-    return isinstance(resume, str) and resume.lower() == "auto"
-
-
 def _is_multirun() -> bool:
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
@@ -343,31 +320,6 @@ def _hydra_output_dir() -> Path | None:
     if HydraConfig.initialized():
         return Path(HydraConfig.get().runtime.output_dir)
     return None
-
-
-def _warn_about_changes(saved: DictConfig, cfg: Any) -> None:
-    """Log the keys given on the command line that the saved config overrules."""
-    if not isinstance(cfg, DictConfig):
-        return
-    old = OmegaConf.to_container(saved, resolve=True)
-    new = OmegaConf.to_container(cfg, resolve=True)
-    changed = [key for key in _diff(old, new) if key.split(".")[0] not in _VOLATILE_KEYS]
-    from hydra.core.hydra_config import HydraConfig
-
-    if HydraConfig.initialized():  # only what the user typed, not the defaults
-        typed = [o.split("=")[0].lstrip("+~") for o in HydraConfig.get().overrides.task]
-        changed = [k for k in changed if any(k == t or k.startswith(f"{t}.") for t in typed)]
-    if changed:
-        log.warning(
-            "resuming with the run's saved config; ignoring changed keys: %s", ", ".join(changed)
-        )
-
-
-def _diff(old: Any, new: Any, prefix: str = "") -> list[str]:
-    if isinstance(old, dict) and isinstance(new, dict):
-        keys = sorted(set(old) | set(new))
-        return [d for k in keys for d in _diff(old.get(k), new.get(k), f"{prefix}{k}.")]
-    return [prefix.rstrip(".")] if old != new else []
 
 
 def _log_hparams(run_dir: Path, settings: TrainSettings, results: dict[str, Any]) -> None:

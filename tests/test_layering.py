@@ -26,7 +26,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("frl.run_directory", "frl.envs", "frl.agents"),
     ("frl.episodes", "frl.policies", "frl.recording", "frl.yardsticks", "frl.provenance"),
     ("frl.federation", "frl.vehicle_host"),
-    ("frl.train_config",),
+    ("frl.train_config", "frl.run_opening"),
     ("frl.flower", "frl.evaluate"),
     ("frl.training",),
     (

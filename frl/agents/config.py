@@ -30,6 +30,14 @@ FIELDS_ADDED_LATER: dict[str, object] = {
 those agents ran with (which are not today's defaults)."""
 
 
+def agent_fields_as_run(data: dict[str, Any]) -> dict[str, Any]:
+    """Saved agent settings (a checkpoint's, a run config's) as the agent ran: the
+    :data:`FIELDS_ADDED_LATER` they lack at their old values, retired options
+    (:mod:`frl.agents.retired`) at their off values dropped; one at any other value
+    raises :class:`frl.agents.retired.RetiredOptionError`. The one place both are read."""
+    return without_retired({**FIELDS_ADDED_LATER, **data})
+
+
 def _require(condition: bool, message: str) -> None:
     if not condition:
         raise ValueError(message)
@@ -277,10 +285,8 @@ class DDPGConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> DDPGConfig:
         """Inverse of :meth:`to_dict`; unknown keys raise ``TypeError``. Keys of
-        :data:`FIELDS_ADDED_LATER` that ``data`` lacks take the values agents had before;
-        retired keys (:mod:`frl.agents.retired`) at their off values are dropped, and at
-        any other value raise :class:`frl.agents.retired.RetiredOptionError`."""
-        data = without_retired({**FIELDS_ADDED_LATER, **data})
+        :data:`FIELDS_ADDED_LATER` and retired keys as :func:`agent_fields_as_run` reads them."""
+        data = agent_fields_as_run(data)
         for name in ("hidden_sizes", "lagrange_gains"):
             if name in data:
                 data[name] = tuple(data[name])
