@@ -114,7 +114,7 @@ def draw(runs: Sequence[RunRecord], path: Path) -> Path:
     atomically to ``path`` as a PNG."""
     if not runs:
         raise ValueError("no runs to draw")
-    plt = _pyplot()
+    plt = pyplot()
     settings = settings_of(runs)
     figure = plt.figure(figsize=(13, 8.5))
     grid = figure.add_gridspec(2, 3, height_ratios=(1.1, 1.0), hspace=0.35, wspace=0.28)
@@ -297,7 +297,8 @@ def _colors(count: int) -> list[Any]:
     return [palette[i % len(palette)] for i in range(count)]
 
 
-def _pyplot() -> Any:
+def pyplot() -> Any:
+    """matplotlib's pyplot on the Agg backend: files only, never a window."""
     import matplotlib
 
     matplotlib.use("Agg")  # files only; never opens a window

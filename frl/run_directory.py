@@ -319,7 +319,16 @@ def resolve(resume: Any, configured: str | Path | None, default: Path | None) ->
     if isinstance(resume, str) and resume.lower() not in ("true", "false", "auto"):
         run_dir = Path(resume).expanduser()
         if read_state(run_dir) is None:
-            raise RunDirectoryError(f"resume={resume}: no checkpointed run there (no {STATE_FILE})")
+            stopped_early = (run_dir / CONFIG_FILE).is_file()
+            raise RunDirectoryError(
+                f"resume={resume}: no checkpointed run there (no {STATE_FILE})"
+                + (
+                    "; it stopped before its first round was committed: start it again "
+                    f"with run_dir={resume} resume=auto"
+                    if stopped_early
+                    else ""
+                )
+            )
         return run_dir, True
     run_dir = Path(configured) if configured else default
     if run_dir is None:

@@ -107,6 +107,12 @@ def train(
         "yes" if precision["native_bf16"] else "no",
     )
     log.info("training: %s", budget_line(settings.plan, settings.agent))
+    if settings.agent.collision_budget is not None:
+        log.info(
+            "collision budget: %g collisions per training episode per vehicle (a cost critic "
+            "and a Lagrange multiplier per vehicle; agent.collision_budget=null: none)",
+            settings.agent.collision_budget,
+        )
 
     run_dir.mkdir(parents=True, exist_ok=True)
     OmegaConf.save(OmegaConf.create(to_save), run_dir / rundir.CONFIG_FILE)

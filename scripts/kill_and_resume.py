@@ -5,7 +5,8 @@
 
 Starts ``python -m frl.train OVERRIDE... run_dir=RUN_DIR`` in a session of its own and
 sends SIGKILL to its whole process group (run, forkserver, workers) after a delay drawn
-uniformly from (0, ``--window``) seconds; then resumes it (``resume=RUN_DIR``), kills it
+uniformly from (0, ``--window``) seconds; then resumes it (``resume=auto``: continued, or
+started again if killed before its first commit), kills it
 again, ``--kills`` times in all, and lets the last session finish. ``TWIN_DIR`` is the
 same command's run never killed (train it first). Prints each kill's moment and the
 round committed then, each resume's restore time, and ``scripts/same_run.py``'s
@@ -73,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     for kill in range(args.kills + 1):
         last = kill == args.kills
         delay = None if last else moments.uniform(0, args.window)
-        command = base if kill == 0 else [*base, f"resume={args.run_dir}"]
+        # resume=auto: continue the run, or start it again if killed before a commit
+        command = base if kill == 0 else [*base, "resume=auto"]
         code, text = session(command, delay, logs / f"session{kill}.log")
         for round_index, seconds in RESTORED.findall(text):
             print(f"session {kill}: round {round_index}'s checkpoint restored in {seconds} s")

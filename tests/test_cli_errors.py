@@ -77,11 +77,12 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("agent.collision_budget=-0.1", "collision_budget must lie in [0, 1)"),
         ("agent.cvar_alpha=0", "cvar_alpha must lie in (0, 1]"),
         ("agent.cvar_alpha=0.25", "cvar_alpha below 1 needs the return's quantiles"),
-        ("agent.lagrange_window=10", "lagrange_window tunes the collision budget"),
+        # the paper's budget trains without a collision budget
+        ("budget=paper agent.lagrange_window=10", "lagrange_window tunes the collision budget"),
     ],
 )
 def test_a_bad_override_to_frl_train(run_cli, override, text, tmp_path):
-    result = run_cli("frl.train", override, f"run_dir={tmp_path / 'run'}", cwd=tmp_path)
+    result = run_cli("frl.train", *override.split(), f"run_dir={tmp_path / 'run'}", cwd=tmp_path)
     assert_one_line_error(result, "frl.train: config error:", text)
     assert not (tmp_path / "run").exists()
 

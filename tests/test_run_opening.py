@@ -54,6 +54,10 @@ def test_bad_input_is_one_config_error(tmp_path):
         open_run(compose_config(None, [f"resume={tmp_path / 'nothing'}"]), None)
     run_dir = tmp_path / "run"
     _saved_run(run_dir)
+    (run_dir / rundir.STATE_FILE).rename(tmp_path / "state.json")  # killed before a commit
+    with pytest.raises(ConfigError, match=f"start it again with run_dir={run_dir} resume=auto"):
+        open_run(compose_config(None, [f"resume={run_dir}"]), None)
+    (tmp_path / "state.json").rename(run_dir / rundir.STATE_FILE)
     saved = yaml.safe_load((run_dir / rundir.CONFIG_FILE).read_text())
     saved["agent"]["batch_size"] = -1  # a saved config that no longer validates
     (run_dir / rundir.CONFIG_FILE).write_text(yaml.safe_dump(saved))

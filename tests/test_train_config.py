@@ -51,13 +51,16 @@ def test_the_main_command_trains_eight_steps_per_update_and_the_editions_one():
     assert (paper.plan.total_steps, paper.plan.interval, paper.agent.train_freq) == (
         10_000, 2_000, 1,
     )  # fmt: skip
-    assert paper.agent == full(["agent.train_freq=1"]).agent
+    # The default budget trains under a collision budget; the paper's, as the paper, not.
+    assert (settings.agent.collision_budget, paper.agent.collision_budget) == (0.02, None)
+    assert paper.agent == full(["agent.train_freq=1", "agent.collision_budget=null"]).agent
     paper_line = budget_line(paper.plan, paper.agent)
     assert "5 rounds of 2,000 updates per vehicle (2,000 environment steps" in paper_line
     assert "10,000 environment steps and 9,001 updates per vehicle" in paper_line
     for preset in ("fig3", "fig4", "fig4-guided", "fig6", "quick", "study-learning"):
         edition = full([f"+experiment={preset}"])
         assert edition.agent.train_freq == 1, preset
+        assert edition.agent.collision_budget is None, preset  # the editions' runs, unchanged
         assert edition.plan.total_steps == (3_000 if preset == "quick" else 10_000), preset
     assert full(["+experiment=fig6", "interval=500"]).plan.interval == 500
     assert full(["agent=ddpg-paper", "budget=paper"]).agent.train_freq == 1
@@ -76,8 +79,9 @@ FASTER_LEARNING = ["agent.actor_lr=0.001", "agent.critic_lr=0.001", "agent.tau=0
 
 def test_the_learning_study_is_fig4s_central_ddpg_but_for_its_overrides():
     study = validate(compose_config(None, ["+experiment=study-learning", *FASTER_LEARNING]))
-    assert study == validate(compose_config(None, ["federation=central", *FASTER_LEARNING]))
-    assert study != validate(compose_config(None, ["federation=central"]))
+    fig4_central = ["federation=central", "budget=paper"]
+    assert study == validate(compose_config(None, [*fig4_central, *FASTER_LEARNING]))
+    assert study != validate(compose_config(None, fig4_central))
     assert study.plan.scheme == "central" and study.agent.actor_lr == 0.001
 
 

@@ -122,7 +122,7 @@ class DDPG:
         """The cost critic's Adam, at the reward critic's rate; None without a budget."""
         self.lagrangian = (
             PIDLagrangian(cfg.collision_budget, cfg.lagrange_gains, cfg.lagrange_window)
-            if cfg.costed and cfg.collision_budget is not None
+            if cfg.collision_budget is not None  # cfg.costed, spelled for the type checker
             else None
         )
         """The collision budget's multiplier (:mod:`frl.agents.lagrange`); None without."""

@@ -87,7 +87,7 @@ _Discussion not written yet._
 
 _Discussion not written yet._
 
-## Figs. 4 and 5 at the default budget
+## Figs. 4 and 5 at the default budget, without the collision budget
 
 {claims-data-budget}
 

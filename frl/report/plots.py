@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from frl.fileio import write_bytes_atomic
+from frl.plot import pyplot
 from frl.report.aggregate import (
     SCHEME_LABELS,
     TASKS,
@@ -31,19 +32,10 @@ YARDSTICK_STYLES = {
 }
 
 
-def _pyplot():  # type: ignore[no-untyped-def]
-    import matplotlib
-
-    matplotlib.use("Agg")  # files only; never opens a window
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _save(figure, path: Path) -> Path:  # type: ignore[no-untyped-def]
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=120, bbox_inches="tight")
-    _pyplot().close(figure)
+    pyplot().close(figure)
     write_bytes_atomic(path, buffer.getvalue())
     return path
 
@@ -76,7 +68,7 @@ def plot_fig4(
 ) -> Path:
     """Average training reward per scheme, mean and 95% band over seeds; each yardstick's
     average test return (same seeds) as a reference line."""
-    plt = _pyplot()
+    plt = pyplot()
     figure, (left, right) = plt.subplots(1, 2, figsize=(12, 4.2))
     for scheme, c in curves.items():
         label = f"{SCHEME_LABELS[scheme]} (n={len(c.seeds)})"
@@ -117,7 +109,7 @@ def plot_fig4_tested(
     """The per-round test curve per scheme: tested return, collisions and arrivals, mean
     and 95% band over seeds; each yardstick as a reference line, tested on the curve's
     own seeds where ``on_curve_seeds``, else on the final test's."""
-    plt = _pyplot()
+    plt = pyplot()
     titles = ("tested return", "collision rate", "arrival rate")
     figure, axes = plt.subplots(1, 3, figsize=(15, 4))
     for axis, metric, title in zip(axes, TESTED_CURVE_METRICS, titles, strict=True):
@@ -143,7 +135,7 @@ def plot_fig5(
 ) -> Path:
     """Test reward, collision rate and travel time per task and scheme, with 95% CIs;
     each yardstick (same seeds) as a horizontal mark across its task's bars."""
-    plt = _pyplot()
+    plt = pyplot()
     panels = (
         ("average_reward", "average reward"),
         ("collision_rate", "collision rate"),
@@ -194,7 +186,7 @@ def plot_fig6(
 ) -> Path:
     """FedAvg reward against the aggregation interval, each yardstick's average test
     return (same seeds) as a reference line; communication on a second axis."""
-    plt = _pyplot()
+    plt = pyplot()
     figure, axis = plt.subplots(figsize=(7.5, 4.5))
     intervals = np.array([p.interval for p in points], dtype=float)
     final = np.array([p.final_reward.mean for p in points])
@@ -258,7 +250,7 @@ def plot_fig3(
 ) -> Path:
     """Test travel time and collision rate per reward setting, with 95% CIs; each
     yardstick (same seeds and traffic) as a horizontal mark."""
-    plt = _pyplot()
+    plt = pyplot()
     figure, axes = plt.subplots(1, 2, figsize=(12, 4))
     labels = [f"{p.label}\n(n={len(p.seeds)})" for p in points]
     x = np.arange(len(points))
