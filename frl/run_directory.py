@@ -304,6 +304,11 @@ def newest_resumable(roots: Iterable[str | Path], exclude: Path | None = None) -
     return max(candidates, key=lambda p: (p / STATE_FILE).stat().st_mtime, default=None)
 
 
+def names_a_run(resume: Any) -> bool:
+    """Whether the ``resume`` key names a run directory (not false, true or ``auto``)."""
+    return isinstance(resume, str) and resume.lower() not in ("true", "false", "auto")
+
+
 def resolve(resume: Any, configured: str | Path | None, default: Path | None) -> tuple[Path, bool]:
     """The directory a run writes into, and whether it holds a run to resume (or skip).
 
@@ -316,7 +321,7 @@ def resolve(resume: Any, configured: str | Path | None, default: Path | None) ->
         RunDirectoryError: nothing to resume where asked, or a run already there.
     """
     auto = isinstance(resume, str) and resume.lower() == "auto"
-    if isinstance(resume, str) and resume.lower() not in ("true", "false", "auto"):
+    if names_a_run(resume):
         run_dir = Path(resume).expanduser()
         if read_state(run_dir) is None:
             stopped_early = (run_dir / CONFIG_FILE).is_file()

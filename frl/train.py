@@ -28,7 +28,7 @@ from omegaconf import DictConfig
 
 from frl.agents.retired import RETIRED_OPTIONS, RetiredOptionError, without_retired
 from frl.federation.workers import ClientFailure
-from frl.run_directory import RunDirectoryError, check_can_make
+from frl.run_directory import RunDirectoryError, check_can_make, names_a_run
 from frl.run_opening import open_run
 from frl.train_config import ConfigError, one_line_error, register_configs, validate
 from frl.training import train
@@ -198,14 +198,10 @@ def _check_opens(cfg: Any, full: Any, multirun: bool, this_machine: bool) -> Non
     run already there is refused now. A sweep's jobs get directories of Hydra's choosing
     when ``run_dir`` is unset; their configs are validated, and an explicit
     ``resume=RUN_DIR`` checked."""
-    if multirun and not cfg.run_dir and not _names_a_directory(cfg.resume):
+    if multirun and not cfg.run_dir and not names_a_run(cfg.resume):
         validate(cfg, this_machine=this_machine)
         return
     open_run(cfg, Path(full.hydra.run.dir), this_machine=this_machine, quiet=True)
-
-
-def _names_a_directory(resume: object) -> bool:
-    return isinstance(resume, str) and resume.lower() not in ("true", "false", "auto")
 
 
 if __name__ == "__main__":

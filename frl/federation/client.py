@@ -346,23 +346,21 @@ class VehicleClient:
     def _drive(self) -> Drive:
         """Where this vehicle stands: its simulation and the episode in progress."""
         space = self.env.observation_space
-        running = self._observation is not None
-        observations = [spaces.flatten(space, o) for o in self._episode_observations]
+        snapshot = None if self._needs_restart else self.env.snapshot()
+        if self._observation is None:  # between episodes: the lists hold the one that ended
+            no_steps = np.empty((0, spaces.flatdim(space)), np.float32)
+            no_actions = np.empty((0, *self.env.action_space.shape), np.float32)
+            return Drive(snapshot, None, no_steps, no_actions, [], [])
+        # Mid-episode at a round's end: every episode has taken a step by then.
         return Drive(
-            snapshot=None if self._needs_restart else self.env.snapshot(),
-            observation=spaces.flatten(space, self._observation) if running else None,
-            episode_observations=(
-                np.stack(observations)
-                if running and observations
-                else np.empty((0, spaces.flatdim(space)), np.float32)
+            snapshot=snapshot,
+            observation=spaces.flatten(space, self._observation),
+            episode_observations=np.stack(
+                [spaces.flatten(space, o) for o in self._episode_observations]
             ),
-            episode_actions=(
-                np.stack(self._episode_actions)
-                if running and self._episode_actions
-                else np.empty((0, *self.env.action_space.shape), np.float32)
-            ),
-            episode_rewards=list(self._episode_rewards) if running else [],
-            episode_speeds=list(self._episode_speeds) if running else [],
+            episode_actions=np.stack(self._episode_actions),
+            episode_rewards=list(self._episode_rewards),
+            episode_speeds=list(self._episode_speeds),
         )
 
     def _resume_drive(self, drive: Drive) -> None:
