@@ -64,9 +64,9 @@ def open_run(
     Raises:
         ConfigError: an invalid config, or no run directory to use, in one line.
     """
-    resume = _get(cfg, "resume", False)
+    resume = config_value(cfg, "resume", False)
     try:
-        run_dir, resuming = rundir.resolve(resume, _get(cfg, "run_dir"), default_dir)
+        run_dir, resuming = rundir.resolve(resume, config_value(cfg, "run_dir"), default_dir)
     except RunDirectoryError as error:
         raise ConfigError(str(error)) from None
     auto = isinstance(resume, str) and resume.lower() == "auto"
@@ -77,7 +77,7 @@ def open_run(
         runs = load_run_config(run_dir)
         if not quiet:
             _log_overruled_keys(runs, cfg)
-        runs.cores = _get(cfg, "cores", 0)
+        runs.cores = config_value(cfg, "cores", 0)
     settings = validate(runs, this_machine=this_machine)
     to_save = (
         OmegaConf.to_container(runs, resolve=True) if isinstance(runs, DictConfig) else dict(runs)
@@ -86,7 +86,8 @@ def open_run(
     return OpenedRun(run_dir, "resume" if resuming else "new", settings, config)  # type: ignore[arg-type]
 
 
-def _get(cfg: Any, key: str, default: Any = None) -> Any:
+def config_value(cfg: Any, key: str, default: Any = None) -> Any:
+    """``cfg[key]`` of a DictConfig, a dict or an attribute object; ``default`` if absent."""
     return cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
 
 

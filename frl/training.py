@@ -34,7 +34,7 @@ from frl.federation.workers import ClientFailure
 from frl.fileio import read_json, write_json_atomic
 from frl.provenance import versions
 from frl.run_directory import RoundHook, RunState
-from frl.run_opening import open_run
+from frl.run_opening import config_value, open_run
 from frl.train_config import TrainSettings
 
 log = logging.getLogger("frl.train")
@@ -97,7 +97,7 @@ def train(
     assert settings is not None and to_save is not None
     if resuming:
         log.info("resuming %s", run_dir)
-    progress = bool(_get(cfg, "progress", True)) and not _is_multirun()
+    progress = bool(config_value(cfg, "progress", True)) and not _is_multirun()
     precision = precision_report(settings.agent.precision, settings.device)
     log.info(
         "agent precision: %s (agent.precision=%s; native bf16 on this %s: %s)",
@@ -110,8 +110,11 @@ def train(
     if settings.agent.collision_budget is not None:
         log.info(
             "collision budget: %g collisions per training episode per vehicle (a cost critic "
-            "and a Lagrange multiplier per vehicle; agent.collision_budget=null: none)",
+            "and a Lagrange multiplier %s; agent.collision_budget=null: none)",
             settings.agent.collision_budget,
+            "averaged with the models each round"
+            if settings.agent.average_multiplier
+            else "per vehicle",
         )
 
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -309,10 +312,6 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
 
 
 # ------------------------------------------------------------------ the config
-def _get(cfg: Any, key: str, default: Any = None) -> Any:
-    return cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
-
-
 def _is_multirun() -> bool:
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode

@@ -28,7 +28,11 @@ FIGURE_DIRS: tuple[str, ...] = ("fig4", "fig6", "fig3")
 FIGURES: tuple[str, ...] = ("fig3", "fig4", "fig5", "fig6")
 AGENT_PANELS: dict[str, str] = {
     "data-budget": "python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4 --runs-dir "
-    "outputs/repro/runs/data-budget --data-dir outputs/repro/data/data-budget -- budget=data",
+    "outputs/repro/runs/data-budget --data-dir outputs/repro/data/data-budget -- budget=data "
+    "agent.collision_budget=null",
+    "collision-budget": "python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4 --runs-dir "
+    "outputs/repro/runs/collision-budget --data-dir outputs/repro/data/collision-budget -- "
+    "budget=data",
     "guided": "python -m frl.reproduce --figures fig4-guided",
     "paper-agent": "python -m frl.reproduce --figures fig4 --runs-dir outputs/repro/runs/"
     "paper-agent --data-dir outputs/repro/data/paper-agent -- agent=ddpg-paper",
@@ -36,7 +40,8 @@ AGENT_PANELS: dict[str, str] = {
 """Optional second roots under a reproduction root, each laid out like it, with Figs. 4
 and 5 trained on another agent or budget, and the command that makes each:
 ``data-budget`` (the default agent at the main command's budget, 80,000 steps and an
-update every 8, where the editions train the paper's 10,000 and an update a step),
+update every 8, where the editions train the paper's 10,000 and an update a step, without
+the collision budget), ``collision-budget`` (the same with it: the main command's agent),
 ``guided`` (``agent=ddpg-guided``, which learns from the gap-acceptance rule) and
 ``paper-agent`` (the paper's Table II agent). Each is reported as a panel of its own,
 never mixed with the editions' runs."""

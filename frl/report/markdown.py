@@ -99,6 +99,18 @@ _Discussion not written yet._
 
 {runs-data-budget}
 
+## Figs. 4 and 5 at the default budget, with the collision budget
+
+{claims-collision-budget}
+
+{fig4-collision-budget}
+
+{fig4-tested-collision-budget}
+
+{fig5-collision-budget}
+
+{runs-collision-budget}
+
 ## Figs. 4 and 5 with the guided agent
 
 {claims-guided}
