@@ -110,11 +110,8 @@ def train(
     if settings.agent.collision_budget is not None:
         log.info(
             "collision budget: %g collisions per training episode per vehicle (a cost critic "
-            "and a Lagrange multiplier %s; agent.collision_budget=null: none)",
+            "and a Lagrange multiplier per vehicle; agent.collision_budget=null: none)",
             settings.agent.collision_budget,
-            "averaged with the models each round"
-            if settings.agent.average_multiplier
-            else "per vehicle",
         )
 
     run_dir.mkdir(parents=True, exist_ok=True)

@@ -155,8 +155,6 @@ def test_lower_tail_mean_by_hand() -> None:
         ({"collision_budget": 0.1, "lagrange_gains": (1.0, -1.0, 0.0)}, "lagrange_gains must"),
         ({"collision_budget": 0.1, "lagrange_gains": (1.0,)}, "lagrange_gains must"),
         ({"critic": "distributional"}, "critic must be one of expected, quantile"),
-        ({"average_multiplier": True}, "average_multiplier tunes the collision budget"),
-        ({"collision_budget": 0.1, "average_multiplier": "yes"}, "average_multiplier must be"),
     ],
 )
 def test_bad_cost_options_are_refused_naming_the_key(overrides: dict, message: str) -> None:
@@ -283,44 +281,3 @@ def test_a_fedavg_round_averages_the_cost_critic_and_keeps_each_multiplier() -> 
     multipliers = [client.agent.lagrangian.multiplier for client in clients]
     assert multipliers[0] != multipliers[1]  # the multiplier stays with its vehicle
     assert np.isfinite(updates[0].losses["cost_q_mean"]).any()
-
-
-def test_an_averaged_multiplier_travels_with_the_models_and_fedavg_means_it() -> None:
-    from frl.federation import fedavg
-
-    config = small_config(collision_budget=0.05, average_multiplier=True)
-    agents = [DDPG(ONE, ONE, config, seed=seed) for seed in (0, 1)]
-    for agent, collisions in zip(agents, (0.0, 1.0), strict=True):
-        agent.lagrangian.episode_end(collisions)
-    uploads = [agent.federated_state() for agent in agents]
-    assert uploads[1]["lagrangian.integral"].dtype == torch.float64
-    global_model = fedavg(uploads)
-    for agent in agents:
-        agent.load_federated_state(global_model)
-    integrals = [agent.lagrangian.integral for agent in agents]
-    assert integrals[0] == integrals[1] == pytest.approx(0.1 * 0.95 / 2)
-    assert agents[0].lagrangian.multiplier == pytest.approx((10 * 0.95 + 0.1 * 0.95) / 2)
-    # Each vehicle's own window moves lambda on from the shared integral.
-    assert agents[0].lagrangian.recent != agents[1].lagrangian.recent
-    assert "lagrangian.integral" not in dash_agent(0.05).federated_state()  # per vehicle
-
-
-def test_a_bad_averaged_multiplier_changes_nothing() -> None:
-    agent = DDPG(ONE, ONE, small_config(collision_budget=0.05, average_multiplier=True))
-    state = agent.federated_state()
-    before = {key: value.clone() for key, value in state.items()}
-    state["lagrangian.integral"] = torch.tensor(float("nan"), dtype=torch.float64)
-    state["actor.layers.0.weight"] = state["actor.layers.0.weight"] + 1
-    with pytest.raises(ValueError, match="must be finite"):
-        agent.load_federated_state(state)
-    after = agent.federated_state()
-    assert all(torch.equal(after[key], before[key]) for key in before)
-    del state["lagrangian.multiplier"]
-    with pytest.raises(ValueError, match=r"lagrangian\.multiplier"):
-        agent.load_federated_state(state)
-    # A server optimizer's step past the rule's range is projected back, as the rule does.
-    state = agent.federated_state()
-    state["lagrangian.integral"] = torch.tensor(-0.5, dtype=torch.float64)
-    state["lagrangian.multiplier"] = torch.tensor(1e6, dtype=torch.float64)
-    agent.load_federated_state(state)
-    assert (agent.lagrangian.integral, agent.lagrangian.multiplier) == (0.0, LAMBDA_MAX)

@@ -36,6 +36,7 @@ ON = {
     "guide_filter": "q",
     "gradient_steps": 4,
     "random_warmup": False,
+    "average_multiplier": True,
 }
 CONTEXT = {"guide_filter": {"guide": "gap_acceptance", "guide_weight": 1.0}}
 """Other options under which a retired key's on value did something."""

@@ -79,9 +79,6 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("agent.cvar_alpha=0.25", "cvar_alpha below 1 needs the return's quantiles"),
         # the paper's budget trains without a collision budget
         ("budget=paper agent.lagrange_window=10", "lagrange_window tunes the collision budget"),
-        ("agent.collision_budget=null agent.average_multiplier=true",
-         "average_multiplier tunes the collision budget"),  # fmt: skip
-        ("agent.average_multiplier=sometimes", "average_multiplier"),
     ],
 )
 def test_a_bad_override_to_frl_train(run_cli, override, text, tmp_path):

@@ -174,9 +174,6 @@ class DDPGConfig:
     units per collision and per unit of collision rate over budget."""
     lagrange_window: int = 50
     """Training episodes in the collision rate that the multiplier follows."""
-    average_multiplier: bool = False
-    """Whether the multiplier's PID state travels with the models, so that FedAvg averages
-    it each round like a parameter; False: each vehicle prices its own collisions."""
     critic: str = "expected"
     """What the reward critic learns: ``expected``, the mean return (DDPG), or
     ``quantile``, ``quantiles`` quantiles of the return (QR-DQN's quantile Huber loss), so
@@ -244,12 +241,8 @@ class DDPGConfig:
             and all(math.isfinite(g) and g >= 0 for g in gains),
             f"lagrange_gains must be three finite numbers >= 0 (Kp, Ki, Kd), got {gains!r}",
         )
-        _require(
-            isinstance(self.average_multiplier, bool),
-            f"average_multiplier must be true or false, got {self.average_multiplier!r}",
-        )
         if budget is None:
-            for name in ("lagrange_gains", "lagrange_window", "average_multiplier"):
+            for name in ("lagrange_gains", "lagrange_window"):
                 _require(
                     getattr(self, name) == getattr(DDPGConfig, name),
                     f"{name} tunes the collision budget: set collision_budget too",

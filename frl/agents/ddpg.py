@@ -34,7 +34,7 @@ from frl.agents.functional import (
     td_target,
 )
 from frl.agents.guide import imitation_loss
-from frl.agents.lagrange import MULTIPLIER_PREFIX, PIDLagrangian
+from frl.agents.lagrange import PIDLagrangian
 from frl.agents.learn import LearnCallback, learn
 from frl.agents.networks import (
     TARGET_NAMES,
@@ -393,40 +393,18 @@ class DDPG:
     @property
     def federated_keys(self) -> tuple[str, ...]:
         """Keys of :meth:`federated_state`, in a stable order."""
-        return tuple(self.networks.state_dict()) + tuple(self._shared_multiplier_keys())
+        return tuple(self.networks.state_dict())
 
     def federated_state(self) -> dict[str, Tensor]:
         """Detached contiguous CPU copies of all network parameters, online and target
-        (``actor.layers.0.weight``, ``critic_target.layers.4.bias``, ...), and with
-        ``average_multiplier`` the collision budget's PID state (``lagrangian.integral``,
-        ``lagrangian.multiplier``, float64 scalars). Optimizer moments, the replay buffer
-        and the noise stay private to the agent."""
-        state = self.networks.cpu_copy()
-        for key, name in self._shared_multiplier_keys().items():
-            assert self.lagrangian is not None
-            value = self.lagrangian.shared_state()[name]
-            state[key] = torch.tensor(value, dtype=torch.float64)
-        return state
+        (``actor.layers.0.weight``, ``critic_target.layers.4.bias``, ...). Optimizer
+        moments, the replay buffer and the noise stay private to the agent."""
+        return self.networks.cpu_copy()
 
     def load_federated_state(self, state: dict[str, Tensor]) -> None:
         """Copy a :meth:`federated_state`-shaped dict in. Strict: a missing or unexpected
         key or a shape mismatch raises ``ValueError`` naming the key, changing nothing."""
-        shared = self._shared_multiplier_keys()
-        missing = sorted(key for key in shared if key not in state)
-        if missing:
-            raise ValueError(f"missing key {missing[0]!r} (the averaged collision multiplier)")
-        networks = {k: v for k, v in state.items() if k not in shared}
-        self.networks.check_state(networks)
-        if self.lagrangian is not None and shared:  # it checks before it changes anything
-            self.lagrangian.load_shared_state({n: float(state[k]) for k, n in shared.items()})
-        self.networks.load_strict(networks)
-
-    def _shared_multiplier_keys(self) -> dict[str, str]:
-        """Federated keys of the multiplier's shared state, to its names; none unless the
-        fleet averages it (``DDPGConfig.average_multiplier``)."""
-        if self.lagrangian is None or not self.config.average_multiplier:
-            return {}
-        return {f"{MULTIPLIER_PREFIX}{name}": name for name in self.lagrangian.shared_state()}
+        self.networks.load_strict(state)
 
     def set_proximal_anchor(self, mu: float) -> None:
         """FedProx (Li et al. 2020): from now on each update adds mu/2 ||w - w_anchor||^2 to

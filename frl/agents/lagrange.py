@@ -28,13 +28,8 @@ for that scale and for a vehicle's 1,000-1,500 training episodes at the default 
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from typing import Any
-
-MULTIPLIER_PREFIX = "lagrangian."
-"""Prefix of the multiplier's keys in an agent's federated state
-(``DDPGConfig.average_multiplier``)."""
 
 LAMBDA_MAX = 100.0
 """Upper bound of the multiplier: a collision priced at about seven times what the
@@ -83,24 +78,6 @@ class PIDLagrangian:
         value = self.kp * error + self.integral + self.kd * rising
         self.multiplier = min(max(value, 0.0), LAMBDA_MAX)
         return self.multiplier
-
-    def shared_state(self) -> dict[str, float]:
-        """What a fleet that averages the multiplier averages: the integral, the rule's
-        memory, and lambda itself (each vehicle's own rate moves it from the next episode)."""
-        return {"integral": self.integral, "multiplier": self.multiplier}
-
-    def load_shared_state(self, state: dict[str, float]) -> None:
-        """Adopt a :meth:`shared_state`, the fleet's aggregate after a round, projected
-        onto the rule's range as the rule projects its own (a server optimizer's step may
-        leave it); a value that is not finite raises ``ValueError``, changing nothing."""
-        integral, multiplier = float(state["integral"]), float(state["multiplier"])
-        if not (math.isfinite(integral) and math.isfinite(multiplier)):
-            raise ValueError(
-                f"a shared multiplier state must be finite, got integral {integral!r} and "
-                f"lambda {multiplier!r}"
-            )
-        self.integral = max(0.0, integral)
-        self.multiplier = min(max(multiplier, 0.0), LAMBDA_MAX)
 
     def state_dict(self) -> dict[str, Any]:
         """Plain numbers and lists (checkpoints load with ``weights_only=True``)."""

@@ -35,6 +35,8 @@ _DRIVE_WELL = '"Agents that drive well"'
 _LEVERS = '"The rule as a teacher, the task as an input, prioritised replay"'
 _UNMEASURED_COMMIT = "bbf4ecc"
 _THIRD_COMMIT = "c76bc5e"
+_BUDGET = '"A collision budget"'
+_BUDGET_COMMIT = "HEAD"
 
 RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "action_repeat": RetiredOption(1, _DRIVE_WELL),
@@ -56,6 +58,7 @@ RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "guide_filter": RetiredOption("none", _LEVERS, _THIRD_COMMIT, ("guide_weight", 0)),
     "gradient_steps": RetiredOption(1, _LEVERS, _THIRD_COMMIT),
     "random_warmup": RetiredOption(True, None, _THIRD_COMMIT),
+    "average_multiplier": RetiredOption(False, _BUDGET, _BUDGET_COMMIT),
 }
 """Each retired key, with its off value and its study."""
 
