@@ -36,7 +36,7 @@ _LEVERS = '"The rule as a teacher, the task as an input, prioritised replay"'
 _UNMEASURED_COMMIT = "bbf4ecc"
 _THIRD_COMMIT = "c76bc5e"
 _BUDGET = '"A collision budget"'
-_BUDGET_COMMIT = "HEAD"
+_BUDGET_COMMIT = "60f3304"
 
 RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "action_repeat": RetiredOption(1, _DRIVE_WELL),
