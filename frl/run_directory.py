@@ -304,6 +304,11 @@ def newest_resumable(roots: Iterable[str | Path], exclude: Path | None = None) -
     return max(candidates, key=lambda p: (p / STATE_FILE).stat().st_mtime, default=None)
 
 
+def is_auto(resume: Any) -> bool:
+    """Whether the ``resume`` key is ``auto``: continue, skip or start the run there."""
+    return isinstance(resume, str) and resume.lower() == "auto"
+
+
 def names_a_run(resume: Any) -> bool:
     """Whether the ``resume`` key names a run directory (not false, true or ``auto``)."""
     return isinstance(resume, str) and resume.lower() not in ("true", "false", "auto")
@@ -320,7 +325,6 @@ def resolve(resume: Any, configured: str | Path | None, default: Path | None) ->
     Raises:
         RunDirectoryError: nothing to resume where asked, or a run already there.
     """
-    auto = isinstance(resume, str) and resume.lower() == "auto"
     if names_a_run(resume):
         run_dir = Path(resume).expanduser()
         if read_state(run_dir) is None:
@@ -338,7 +342,7 @@ def resolve(resume: Any, configured: str | Path | None, default: Path | None) ->
     run_dir = Path(configured) if configured else default
     if run_dir is None:
         raise RunDirectoryError("run_dir must be set when frl trains outside Hydra")
-    if auto:  # deterministic sweep dirs: continue, skip or start the run there
+    if is_auto(resume):  # deterministic sweep dirs: continue, skip or start the run there
         return run_dir, read_state(run_dir) is not None and (run_dir / CONFIG_FILE).exists()
     if resume is True or (isinstance(resume, str) and resume.lower() == "true"):
         if is_resumable(run_dir):

@@ -69,8 +69,7 @@ def open_run(
         run_dir, resuming = rundir.resolve(resume, config_value(cfg, "run_dir"), default_dir)
     except RunDirectoryError as error:
         raise ConfigError(str(error)) from None
-    auto = isinstance(resume, str) and resume.lower() == "auto"
-    if resuming and auto and rundir.is_finished(run_dir):
+    if resuming and rundir.is_auto(resume) and rundir.is_finished(run_dir):
         return OpenedRun(run_dir, "finished", None, None)
     runs: Any = cfg
     if resuming:

@@ -33,9 +33,10 @@ class VehicleHost:
 
     Requests (``header["op"]``): ``ping``; ``setup`` builds the vehicle of a run
     (idempotent); ``train`` runs local training; ``sync`` loads the global model and/or
-    writes a checkpoint; ``load`` restores one; ``model`` returns the full model (Flower:
-    the roadside unit writes it); ``save_model`` writes it under ``state_dir``. Paths
-    are relative to ``state_dir`` and must stay inside it.
+    writes a checkpoint; ``load`` restores one and says whether it held the vehicle's
+    drive; ``model`` returns the full model (Flower: the roadside unit writes it);
+    ``save_model`` writes it under ``state_dir``. Paths are relative to ``state_dir``
+    and must stay inside it.
     """
 
     def __init__(self, state_dir: str | os.PathLike[str]) -> None:
@@ -91,8 +92,7 @@ class VehicleHost:
                 self._save(str(header["checkpoint"]))
             return {}, {}
         if op == "load":
-            client.load(self._path(str(header["checkpoint"])))
-            return {}, {}
+            return {"drive_restored": client.load(self._path(str(header["checkpoint"])))}, {}
         if op == "model":
             return {}, prefixed(tensors_to_arrays(client.get_parameters(True)), PARAMETERS_PREFIX)
         if op == "save_model":

@@ -85,13 +85,13 @@ def test_killed_at_any_moment_the_resumed_run_is_the_run_never_killed(never_kill
     assert "saved their drive" not in done.stdout + done.stderr
     assert same_run.differences(never_killed, run_dir) == []
 
-    # The same kill with the drives left out of the checkpoint (a run written before
-    # vehicles saved them): the episodes running at the commit are dropped, it says so,
-    # and the run is not the run never killed.
+    # The same kill with one vehicle's drive left out of the checkpoint (written before
+    # vehicles saved them): the episode it was running at the commit is dropped, the run
+    # names that vehicle alone, and it is not the run never killed.
     without = tmp_path / "without_drives"
-    for drive in (without / "checkpoints").glob(f"round_*/*{DRIVE_SUFFIX}"):
+    for drive in (without / "checkpoints").glob(f"round_*/client0_left{DRIVE_SUFFIX}"):
         drive.unlink()
     done = _session(without, None, resume=True)
     assert done.returncode == 0, done.stderr[-3000:]
-    assert "written before vehicles saved their drive" in done.stdout + done.stderr
+    assert "written before vehicles saved their drive (client0_left)" in done.stdout + done.stderr
     assert same_run.differences(never_killed, without) != []

@@ -62,8 +62,9 @@ class ClientPool(Protocol):
     def save(self, directory: Path) -> None:
         """Every client writes its full resumable state under ``directory``."""
 
-    def load(self, directory: Path) -> None:
-        """Every client restores :meth:`save`."""
+    def load(self, directory: Path) -> list[str]:
+        """Every client restores :meth:`save`; the names of those whose checkpoint predates
+        their drive (the episode each was running is dropped)."""
 
     def save_models(self, paths: Sequence[Path | None]) -> None:
         """Client ``i`` writes its model to ``paths[i]`` (None: nothing)."""
@@ -285,9 +286,14 @@ class ProcessClientPool:
         header = {"op": "sync", "parameters": False, "checkpoint": self._relative(directory)}
         self._exchange(dict.fromkeys(self._all(None), header))
 
-    def load(self, directory: Path) -> None:
+    def load(self, directory: Path) -> list[str]:
         header = {"op": "load", "checkpoint": self._relative(directory)}
-        self._exchange(dict.fromkeys(self._all(None), header))
+        replies = self._exchange(dict.fromkeys(self._all(None), header))
+        return [
+            self.names[i]
+            for i, (reply, _) in sorted(replies.items())
+            if not reply["drive_restored"]
+        ]
 
     def save_models(self, paths: Sequence[Path | None]) -> None:
         headers = {

@@ -36,7 +36,6 @@ from frl.agents.checkpoint import read_checkpoint, write_checkpoint
 from frl.agents.ddpg import is_target_key
 from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool
-from frl.federation.drive import drive_path
 from frl.federation.fedavg import state_nbytes
 from frl.federation.plan import FederationPlan, round_sample
 from frl.federation.round_tests import RoundTester
@@ -101,7 +100,7 @@ class Coordinator:
         """Train from ``state`` (fresh or loaded) to the end of the budget; return the state."""
         if state.checkpoint is not None and not state.training_finished:
             began = time.perf_counter()
-            self.clients.load(self.run_dir / state.checkpoint)
+            without_drive = self.clients.load(self.run_dir / state.checkpoint)
             self._load_server_state(self.run_dir / state.checkpoint)
             log.info(
                 "round %d's checkpoint restored in %.1f s (agents, buffers and each "
@@ -109,7 +108,14 @@ class Coordinator:
                 state.completed_rounds,
                 time.perf_counter() - began,
             )
-            self._say_if_drives_are_missing(self.run_dir / state.checkpoint, state)
+            if without_drive:
+                log.info(
+                    "round %d's checkpoint was written before vehicles saved their drive "
+                    "(%s): the episodes running then are dropped, so this run goes on in "
+                    "new simulations and will not end as the run never stopped",
+                    state.completed_rounds,
+                    ", ".join(without_drive),
+                )
         if (
             self.plan.aggregates
             and self.strategy.spec.needs_global_model
@@ -131,17 +137,6 @@ class Coordinator:
         finally:
             progress.close()
         return state
-
-    def _say_if_drives_are_missing(self, checkpoint: Path, state: RunState) -> None:
-        """One line where the vehicles' checkpoints here predate their drive."""
-        saved_here = [n for n in self.clients.names if (checkpoint / f"{n}.json").exists()]
-        if any(not drive_path(checkpoint, name).exists() for name in saved_here):
-            log.info(
-                "round %d's checkpoint was written before vehicles saved their drive: the "
-                "episodes running then are dropped, so this run goes on in new simulations "
-                "and will not end as the run never stopped",
-                state.completed_rounds,
-            )
 
     def _round(
         self, round_index: int, state: RunState, step_rewards: np.ndarray, progress: _RunProgress

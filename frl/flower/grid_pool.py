@@ -286,9 +286,15 @@ class FlowerClientPool:
     def save(self, directory: Path) -> None:
         self._flush(checkpoint=self._relative(directory))
 
-    def load(self, directory: Path) -> None:
+    def load(self, directory: Path) -> list[str]:
         header = {"checkpoint": self._relative(directory)}
-        self._exchange("load", {spec.index: header for spec in self._live()})
+        replies = self._exchange("load", {spec.index: header for spec in self._live()})
+        names = {spec.index: spec.name for spec in self.specs}
+        return [
+            names[index]
+            for index, reply in sorted(replies.items())
+            if not read_header(reply.content)["drive_restored"]
+        ]
 
     def save_models(self, paths: Sequence[Path | None]) -> None:
         """Client ``i`` (of :attr:`names`) uploads its whole model; it is written here."""
