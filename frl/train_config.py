@@ -40,6 +40,7 @@ from frl.federation.plan import (
     initial_model_seed,
     round_test_seeds,
 )
+from frl.federation.probe import ProbeConfig
 from frl.federation.round_tests import RoundTester
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores, threads_per_worker
@@ -139,6 +140,7 @@ AgentSchema = schema_of(DDPGConfig, "AgentSchema", leading=(("name", str, "ddpg"
 """``name``: the algorithm (frl implements ``ddpg``)."""
 RewardSchema = schema_of(RewardConfig, "RewardSchema")
 FlowerSchema = schema_of(FlowerSettings, "FlowerSchema")
+ProbeSchema = schema_of(ProbeConfig, "ProbeSchema")
 FederationSchema = schema_of(
     FederationPlan,
     "FederationSchema",
@@ -216,6 +218,8 @@ class TrainSchema:
     agent: AgentSchema = field(default_factory=AgentSchema)  # type: ignore[valid-type]
     federation: FederationSchema = field(default_factory=FederationSchema)  # type: ignore[valid-type]
     reward: RewardSchema = field(default_factory=RewardSchema)  # type: ignore[valid-type]
+    probe: ProbeSchema = field(default_factory=ProbeSchema)  # type: ignore[valid-type]
+    """The counterfactual probe of every vehicle (:mod:`frl.federation.probe`); off."""
 
 
 def register_configs() -> None:
@@ -257,6 +261,7 @@ class TrainSettings:
     workers: int = 0
     round_test_episodes: int = 0
     """Test episodes per task after every round (the per-round test curve); 0: none."""
+    probe: ProbeConfig = field(default_factory=ProbeConfig)
 
     def round_tester(self) -> RoundTester | None:
         """The per-round tester of this run (not started), or None where it has none."""
@@ -314,6 +319,7 @@ class TrainSettings:
                 device=self.device,
                 init_seed=init_seed,
                 proximal_mu=mu,
+                probe=self.probe,
             )
             for index, (task, (agent_seed, env_seed)) in enumerate(
                 zip(tasks, client_seeds(self.seed, len(tasks)), strict=True)
@@ -396,6 +402,7 @@ def validate(
         vehicle_envs = _vehicle_envs(env_config, plan.fleet_size, federation)
         reward_config = RewardConfig(**reward)
         agent_config = DDPGConfig.from_dict(agent)
+        probe = ProbeConfig(**data["probe"])
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
     if plan.aggregates and strategy.needs_global_model and not plan.shares_initial_model:
@@ -432,6 +439,7 @@ def validate(
         vehicle_envs=vehicle_envs,
         workers=federation["workers"],
         round_test_episodes=data["round_test_episodes"],
+        probe=probe,
     )
 
 
