@@ -125,8 +125,6 @@ class RunState:
     "per_task", "average"}`` of the deployed model on the round-test seeds."""
     round_test_s: float = 0.0
     """Seconds the round tests took, summed over rounds (inside ``wall_time_s``)."""
-    probes: dict[str, dict[str, int]] = field(default_factory=dict)
-    """Each probing vehicle's counterfactual-probe tally (``probe.rate`` > 0)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -40,7 +40,6 @@ from frl.federation.plan import (
     initial_model_seed,
     round_test_seeds,
 )
-from frl.federation.probe import ProbeConfig
 from frl.federation.round_tests import RoundTester
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores, threads_per_worker
@@ -140,7 +139,6 @@ AgentSchema = schema_of(DDPGConfig, "AgentSchema", leading=(("name", str, "ddpg"
 """``name``: the algorithm (frl implements ``ddpg``)."""
 RewardSchema = schema_of(RewardConfig, "RewardSchema")
 FlowerSchema = schema_of(FlowerSettings, "FlowerSchema")
-ProbeSchema = schema_of(ProbeConfig, "ProbeSchema")
 FederationSchema = schema_of(
     FederationPlan,
     "FederationSchema",
@@ -218,8 +216,6 @@ class TrainSchema:
     agent: AgentSchema = field(default_factory=AgentSchema)  # type: ignore[valid-type]
     federation: FederationSchema = field(default_factory=FederationSchema)  # type: ignore[valid-type]
     reward: RewardSchema = field(default_factory=RewardSchema)  # type: ignore[valid-type]
-    probe: ProbeSchema = field(default_factory=ProbeSchema)  # type: ignore[valid-type]
-    """The counterfactual probe of every vehicle (:mod:`frl.federation.probe`); off."""
 
 
 def register_configs() -> None:
@@ -261,7 +257,6 @@ class TrainSettings:
     workers: int = 0
     round_test_episodes: int = 0
     """Test episodes per task after every round (the per-round test curve); 0: none."""
-    probe: ProbeConfig = field(default_factory=ProbeConfig)
 
     def round_tester(self) -> RoundTester | None:
         """The per-round tester of this run (not started), or None where it has none."""
@@ -319,7 +314,6 @@ class TrainSettings:
                 device=self.device,
                 init_seed=init_seed,
                 proximal_mu=mu,
-                probe=self.probe,
             )
             for index, (task, (agent_seed, env_seed)) in enumerate(
                 zip(tasks, client_seeds(self.seed, len(tasks)), strict=True)
@@ -402,7 +396,6 @@ def validate(
         vehicle_envs = _vehicle_envs(env_config, plan.fleet_size, federation)
         reward_config = RewardConfig(**reward)
         agent_config = DDPGConfig.from_dict(agent)
-        probe = ProbeConfig(**data["probe"])
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
     if plan.aggregates and strategy.needs_global_model and not plan.shares_initial_model:
@@ -439,7 +432,6 @@ def validate(
         vehicle_envs=vehicle_envs,
         workers=federation["workers"],
         round_test_episodes=data["round_test_episodes"],
-        probe=probe,
     )
 
 
@@ -654,6 +646,13 @@ def complete_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     return _complete(migrate_saved_config(saved))
 
 
+PROBE_RETIREMENT = (
+    'was retired: docs/studies.md, "A collision budget", measured the counterfactual probe '
+    "as not helping, and commit 9b53480 holds its code; only probe.rate=0 (off) still loads"
+)
+"""Why a run config with the counterfactual probe on is refused."""
+
+
 def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     """A run config saved by an earlier frl, with the settings it actually ran with.
 
@@ -669,6 +668,8 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
       one line.
     - No ``config_version`` (format 1): ``interval`` counted environment steps; it becomes
       the updates of those steps (``interval / agent.train_freq``), the same rounds.
+    - ``probe``: the counterfactual probe, retired (:data:`PROBE_RETIREMENT`). Saved off
+      (``rate: 0``) it is dropped; a run that probed is refused in one line.
     """
     saved = dict(saved)
     if "config_version" not in saved:
@@ -684,6 +685,11 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
         scenario["human_speed_dev"] = 0.0
         env["scenario"] = scenario
         saved["env"] = env
+    if "probe" in saved:
+        probe = saved.pop("probe")
+        rate = probe.get("rate", 0.0) if isinstance(probe, dict) else probe
+        if rate != 0:
+            raise ConfigError(f"probe.rate={rate!r} {PROBE_RETIREMENT}")
     if "eval_arrival_period_steps" in saved:
         test_period = saved.pop("eval_arrival_period_steps")
         train_period = scenario.get("human_arrival_period_steps", test_period)

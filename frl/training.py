@@ -113,14 +113,6 @@ def train(
             "and a Lagrange multiplier per vehicle; agent.collision_budget=null: none)",
             settings.agent.collision_budget,
         )
-    if settings.probe.enabled:
-        probe = settings.probe
-        log.info(
-            "counterfactual probe: at %g of the approach states within %g m of the stop line, "
-            "at most %d per episode, a go and a wait branch of %d held steps and %d in all; "
-            "SUMO restarts at every training episode (probe.rate=0: none)",
-            probe.rate, probe.distance_m, probe.per_episode, probe.hold_steps, probe.horizon,
-        )  # fmt: skip
 
     run_dir.mkdir(parents=True, exist_ok=True)
     OmegaConf.save(OmegaConf.create(to_save), run_dir / rundir.CONFIG_FILE)
@@ -297,7 +289,6 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
             "collisions": state.collisions,
             "arrivals": state.arrivals,
             "dropped_clients": state.dropped_clients,
-            **({"probes": state.probes} if state.probes else {}),
             "final_step_reward": float(step_rewards[-tail:].mean()) if len(step_rewards) else None,
             "final_step_reward_definition": (
                 f"mean of train/step_reward over the last {FINAL_REWARD_FRACTION:.0%} of steps"

@@ -130,6 +130,16 @@ def test_runs_saved_before_the_presets_load_as_they_ran(tmp_path):
         load_run_config(tmp_path)
 
 
+def test_a_run_saved_with_the_retired_probe_loads_only_if_it_was_off():
+    data = REPO / "docs" / "results" / "data"
+    off = load_run_config(data / "study-data" / "guided" / "tf8" / "fedavg-seed4")
+    assert "probe" not in off and validate(off).agent.guided  # saved with probe.rate: 0
+    with pytest.raises(ConfigError, match=r"probe\.rate=0\.1 was retired: .*A collision budget"):
+        load_run_config(data / "study-safety" / "probe-0.1" / "fedavg-seed0")
+    with pytest.raises(ConfigCompositionException):  # no such key to set any more
+        compose_config(None, ["probe.rate=0.1"])
+
+
 def test_yardsticks_join_a_runs_curve_on_the_curves_own_seeds(tmp_path, capsys):
     run_dir = tmp_path / "curve-run"
     shutil.copytree(CURVE_RUN, run_dir)

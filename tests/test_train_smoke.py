@@ -58,7 +58,6 @@ def test_each_scheme_trains_logs_and_tests(scheme, tmp_path, capsys):
     ]  # fmt: skip
     assert saved["clients"] == clients
     assert all(saved["training"]["episodes"][c] >= 1 for c in clients)
-    assert "probes" not in saved["training"]  # no counterfactual probe by default
     communication = saved["communication"]
     assert set(communication) == COMMUNICATION_KEYS
     if scheme == "fedavg":

@@ -239,24 +239,6 @@ class DDPG:
         if terminated:
             self._end_training_episode()
 
-    def branch_writer(self) -> TransitionWriter:
-        """A writer into this agent's replay buffer with an n-step accumulator of its own,
-        for transitions the agent did not drive (:meth:`observe_branch`)."""
-        return TransitionWriter(self.buffer, self.config.n_step, self.config.gamma, self.teacher)
-
-    def observe_branch(
-        self, writer: TransitionWriter, obs: Any, action: Any, reward: float, next_obs: Any,
-        terminated: bool, cost: float = 0.0,
-    ) -> None:  # fmt: skip
-        """Store a step of a branch driven off the agent's own episode (a counterfactual
-        probe) through ``writer``: it trains the critics like any transition, but is not
-        one of the agent's environment steps and does not move the collision budget's
-        multiplier, which follows the agent's own driving."""
-        cost = float(cost) if self.lagrangian is not None else 0.0
-        flat, next_flat = self.layout.flat(obs), self.layout.flat(next_obs)
-        unit = self.scale.to_unit(action)
-        writer.write(flat, unit, float(reward), next_flat, bool(terminated), cost)
-
     def _end_training_episode(self) -> None:
         """The running episode ended: the multiplier follows its collisions."""
         if self.episode_steps and self.lagrangian is not None:

@@ -163,11 +163,6 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         """Steps taken in the current episode (0 right after ``reset``)."""
         return self._steps
 
-    @property
-    def distance_to_stop_line(self) -> float:
-        """Metres the ego has left to the stop line (negative once past it)."""
-        return self.config.scenario.ego_start_distance - self._travelled
-
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[Any, dict[str, Any]]:
@@ -227,7 +222,8 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
             return grid
         route = np.zeros(4, np.float32)
         route[TASKS.index(self._task)] = 1.0
-        route[3] = self.distance_to_stop_line / ROUTE_DISTANCE_SCALE_M
+        distance = self.config.scenario.ego_start_distance - self._travelled
+        route[3] = distance / ROUTE_DISTANCE_SCALE_M
         return {"grid": grid, "route": route}
 
     def snapshot(self) -> EnvSnapshot:

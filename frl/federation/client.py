@@ -28,7 +28,6 @@ from frl.agents.learn import training_step
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
 from frl.federation.drive import Drive, drive_path, read_drive, write_drive
-from frl.federation.probe import CounterfactualProbe, ProbeConfig
 from frl.fileio import write_json_atomic
 from frl.policies import install_guide
 
@@ -48,8 +47,6 @@ what its deterministic policy proposed before the noise (NaN during the random w
 PROGRESS_EVERY_STEPS = 100
 
 _SEED_HALF_RANGE = 2**30
-_PROBE_STREAM = 0x9B0BE
-"""Spawn key of the probe's generator, apart from every stream the agent seeds."""
 
 
 def training_sumo_seed(base_seed: int, restart: int) -> int:
@@ -82,8 +79,6 @@ class ClientSpec:
     proximal_mu: float = 0.0
     """FedProx: weight of mu/2 ||w - w_global||^2 in the critic and actor losses, w_global
     the global model last received (0: plain local training)."""
-    probe: ProbeConfig = field(default_factory=ProbeConfig)
-    """The counterfactual probe (:mod:`frl.federation.probe`); off by default."""
 
     @property
     def name(self) -> str:
@@ -114,9 +109,6 @@ class LocalUpdate:
     """CPU seconds the vehicle's process spent on this round (for the timing benchmarks)."""
     wall_time_s: float = 0.0
     """Wall seconds of this round's local training on the vehicle."""
-    probe: dict[str, int] | None = None
-    """The counterfactual probe's tally since the run began (:class:`ProbeTally`), or
-    None where the vehicle does not probe."""
 
 
 ProgressCallback = Callable[..., None]
@@ -145,12 +137,6 @@ class VehicleClient:
         install_guide(self.agent, self.env.config)
         if spec.proximal_mu:
             self.agent.set_proximal_anchor(spec.proximal_mu)
-        self.probe: CounterfactualProbe | None = None
-        if spec.probe.enabled:
-            rng = np.random.default_rng(
-                np.random.SeedSequence(spec.agent_seed, spawn_key=(_PROBE_STREAM,))
-            )
-            self.probe = CounterfactualProbe(spec.probe, self.env, self.agent, rng)
         self._observation: np.ndarray | None = None
         self._restarts = 0
         """SUMO (re)starts so far; the next start uses ``training_sumo_seed(env_seed, n)``."""
@@ -196,8 +182,6 @@ class VehicleClient:
             if self._observation is None:
                 self._start_episode()
             observation = self._observation
-            if self.probe is not None:
-                self.probe.maybe_probe(observation)
             step = training_step(agent, env, observation)
             action, reward, info = step.action, step.reward, step.info
             next_observation, terminated, truncated = step.next_obs, step.terminated, step.truncated
@@ -255,12 +239,10 @@ class VehicleClient:
             parameters=self.get_parameters(include_targets) if upload else None,
             cpu_time_s=time.process_time() - cpu_started,
             wall_time_s=time.perf_counter() - wall_started,
-            probe=None if self.probe is None else self.probe.tally.to_dict(),
         )
 
     def _start_episode(self) -> None:
-        # A probing vehicle restarts SUMO at every episode, so a snapshot replays one.
-        if self._needs_restart or self.probe is not None:
+        if self._needs_restart:
             seed = training_sumo_seed(self.spec.env_seed, self._restarts)
             self._observation, _ = self.env.reset(seed=seed)
             self._restarts += 1
@@ -272,8 +254,6 @@ class VehicleClient:
         self._episode_rewards = []
         self._episode_speeds = []
         self.agent.episode_start()
-        if self.probe is not None:
-            self.probe.episode_start()
 
     def _critic_bias(self) -> float:
         """Mean Q(s_t, a_t) - G_t over the episode that just terminated (critic bias)."""
@@ -367,11 +347,10 @@ class VehicleClient:
         """Where this vehicle stands: its simulation and the episode in progress."""
         space = self.env.observation_space
         snapshot = None if self._needs_restart else self.env.snapshot()
-        probe = None if self.probe is None else self.probe.state()
         if self._observation is None:  # between episodes: the lists hold the one that ended
             no_steps = np.empty((0, spaces.flatdim(space)), np.float32)
             no_actions = np.empty((0, *self.env.action_space.shape), np.float32)
-            return Drive(snapshot, None, no_steps, no_actions, [], [], probe)
+            return Drive(snapshot, None, no_steps, no_actions, [], [])
         # Mid-episode at a round's end: every episode has taken a step by then.
         return Drive(
             snapshot=snapshot,
@@ -382,7 +361,6 @@ class VehicleClient:
             episode_actions=np.stack(self._episode_actions),
             episode_rewards=list(self._episode_rewards),
             episode_speeds=list(self._episode_speeds),
-            probe=probe,
         )
 
     def _resume_drive(self, drive: Drive) -> None:
@@ -400,13 +378,6 @@ class VehicleClient:
         self._episode_actions = list(drive.episode_actions)
         self._episode_rewards = drive.episode_rewards
         self._episode_speeds = drive.episode_speeds
-        if self.probe is not None:
-            if drive.probe is None:
-                raise ValueError(
-                    f"{self.name}: the checkpoint's drive was written without the probe "
-                    "this run has (probe.rate); resume with the run's own config"
-                )
-            self.probe.load_state(drive.probe)
 
     def save_model(self, path: str | os.PathLike[str]) -> None:
         """Write the model alone (no replay buffer), loadable with ``DDPG.from_checkpoint``."""

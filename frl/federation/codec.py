@@ -26,7 +26,6 @@ from frl.agents import DDPGConfig
 from frl.envs import EnvConfig, RewardConfig
 from frl.episodes import EpisodeRecord
 from frl.federation.client import ClientSpec, LocalUpdate
-from frl.federation.probe import ProbeConfig
 from frl.frames import Arrays, prefixed, unprefixed
 
 PARAMETER_PREFIX = "param/"
@@ -50,7 +49,6 @@ def spec_from_json(text: str) -> ClientSpec:
         env=EnvConfig.from_dict(data.pop("env")),
         reward=RewardConfig(**data.pop("reward")),
         agent=DDPGConfig.from_dict(data.pop("agent")),
-        probe=ProbeConfig(**data.pop("probe", {})),
         **data,
     )
 
@@ -83,7 +81,6 @@ def update_to_parts(update: LocalUpdate) -> tuple[Arrays | None, Arrays, dict[st
         "cpu_time_s": update.cpu_time_s,
         "wall_time_s": update.wall_time_s,
         "episodes": [dataclasses.asdict(e) for e in update.episodes],
-        "probe": update.probe,
     }
     return parameters, series, summary
 
@@ -107,5 +104,4 @@ def update_from_parts(
         parameters=None if parameters is None else arrays_to_tensors(parameters),
         cpu_time_s=float(summary["cpu_time_s"]),
         wall_time_s=float(summary.get("wall_time_s", 0.0)),
-        probe=summary.get("probe"),
     )

@@ -407,8 +407,6 @@ def _count_episodes(state: RunState, updates: list[LocalUpdate]) -> None:
             e.collision for e in update.episodes
         )
         state.arrivals[name] = state.arrivals.get(name, 0) + sum(e.arrived for e in update.episodes)
-        if update.probe is not None:  # the vehicle's tally since the run began
-            state.probes[name] = dict(update.probe)
         if update.episodes:
             state.last_returns[name] = update.episodes[-1].episode_return
             window = state.recent_returns.get(name, []) + [

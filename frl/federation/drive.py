@@ -40,9 +40,6 @@ class Drive:
     """(steps, action size): its actions, in the dtype the environment was given them."""
     episode_rewards: list[float]
     episode_speeds: list[float]
-    probe: dict[str, Any] | None = None
-    """The counterfactual probe's state (:meth:`CounterfactualProbe.state`); None where
-    the vehicle does not probe."""
 
 
 def drive_path(directory: str | os.PathLike[str], client_name: str) -> Path:
@@ -56,7 +53,6 @@ def write_drive(path: str | os.PathLike[str], drive: Drive) -> None:
         "episode_rewards": drive.episode_rewards,  # JSON floats read back bit for bit
         "episode_speeds": drive.episode_speeds,
         "environment": None,
-        "probe": drive.probe,
     }
     arrays = {
         "episode_observations": drive.episode_observations,
@@ -87,5 +83,4 @@ def read_drive(path: str | os.PathLike[str]) -> Drive:
             episode_actions=data["episode_actions"],
             episode_rewards=[float(r) for r in fields["episode_rewards"]],
             episode_speeds=[float(v) for v in fields["episode_speeds"]],
-            probe=fields.get("probe"),
         )
