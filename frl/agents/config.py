@@ -15,6 +15,7 @@ ENCODERS: tuple[str, ...] = ("flat", "vehicles")
 ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
 GUIDES: tuple[str, ...] = ("none", "gap_acceptance")
 CRITICS: tuple[str, ...] = ("expected", "quantile")
+COST_CRITICS: tuple[str, ...] = ("separate", "head")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
@@ -73,6 +74,7 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "precision": PRECISIONS,
     "sparse_input": (True, False, "auto"),
     "critic": CRITICS,
+    "cost_critic": COST_CRITICS,
 }
 DEFAULT_LAGRANGE_GAINS: tuple[float, float, float] = (10.0, 0.1, 0.0)
 """The collision budget's PID gains (Kp, Ki, Kd); why these: :mod:`frl.agents.lagrange`."""
@@ -174,6 +176,13 @@ class DDPGConfig:
     units per collision and per unit of collision rate over budget."""
     lagrange_window: int = 50
     """Training episodes in the collision rate that the multiplier follows."""
+    cost_critic: str = "separate"
+    """What learns the budget's Q_c: ``separate``, a critic of its own as large as the
+    reward critic, with its own encoder; or ``head``, a small MLP (one hidden layer as
+    wide as the critic's last) on the reward critic's last hidden layer, which it reads
+    without training it, so the reward critic learns as it does without a budget and the
+    actor's objective takes one pass through the critic. The separate critic doubles the
+    critic's work in every update (docs/studies.md, "A cheaper cost critic")."""
     critic: str = "expected"
     """What the reward critic learns: ``expected``, the mean return (DDPG), or
     ``quantile``, ``quantiles`` quantiles of the return (QR-DQN's quantile Huber loss), so
@@ -242,7 +251,7 @@ class DDPGConfig:
             f"lagrange_gains must be three finite numbers >= 0 (Kp, Ki, Kd), got {gains!r}",
         )
         if budget is None:
-            for name in ("lagrange_gains", "lagrange_window"):
+            for name in ("lagrange_gains", "lagrange_window", "cost_critic"):
                 _require(
                     getattr(self, name) == getattr(DDPGConfig, name),
                     f"{name} tunes the collision budget: set collision_budget too",

@@ -40,7 +40,9 @@ from frl.agents.networks import (
     TARGET_NAMES,
     Actor,
     ActorCritic,
+    CostHead,
     Critic,
+    build_cost_head,
     build_network,
     make_adam,
 )
@@ -108,7 +110,10 @@ class DDPG:
         actor = network(Actor)
         critic = network(Critic, cfg.quantiles if cfg.critic == "quantile" else 1)
         # Built last, so that the actor's and critic's initial weights do not depend on it.
-        cost_critic = network(Critic) if cfg.costed else None
+        cost_critic = None
+        if cfg.costed:
+            separate = cfg.cost_critic == "separate"
+            cost_critic = network(Critic) if separate else build_cost_head(cfg, init, self.device)
         self.networks = nets = ActorCritic(actor, critic, cost_critic)
         self.actor, self.critic = nets.actor, nets.critic
         self.actor_target, self.critic_target = nets.actor_target, nets.critic_target
@@ -273,9 +278,9 @@ class DDPG:
         # float32 (precision.float32_layer), and so are the targets and the losses.
         with self._autocast(), torch.no_grad():
             next_actions = nets.actor_target(batch.next_obs)
-            next_q = nets.critic_target(batch.next_obs, next_actions)
+            next_q, next_hidden = nets.critic_target.values_and_hidden(batch.next_obs, next_actions)
         with self._autocast():
-            q = nets.critic(batch.obs, batch.actions)
+            q, hidden = nets.critic.values_and_hidden(batch.obs, batch.actions)
         discount = cfg.gamma**batch.horizons if cfg.n_step > 1 else cfg.gamma
         if cfg.critic == "quantile":
             per_sample = discount.unsqueeze(-1) if isinstance(discount, Tensor) else discount
@@ -294,7 +299,8 @@ class DDPG:
         else:
             stats["td_error"] = (q - target_q).abs().mean()
         if nets.cost_critic is not None:
-            stats.update(self._cost_critic_step(batch, next_actions, discount))
+            critic_hidden = (hidden.detach(), next_hidden)
+            stats.update(self._cost_critic_step(batch, next_actions, discount, critic_hidden))
         # Actor: up the critic's gradient at its own action. The critics are frozen, so
         # backward computes dQ/da and no critic weight gradient.
         frozen = [net for net in (nets.critic, nets.cost_critic) if net is not None]
@@ -318,17 +324,23 @@ class DDPG:
         return stats
 
     def _cost_critic_step(
-        self, batch: Batch, next_actions: Tensor, discount: float | Tensor
-    ) -> dict[str, Tensor]:
+        self, batch: Batch, next_actions: Tensor, discount: float | Tensor,
+        critic_hidden: tuple[Tensor, Tensor],
+    ) -> dict[str, Tensor]:  # fmt: skip
         """The cost critic's update: squared error to the n-step TD target of the
-        discounted collisions to come, bootstrapped from its own target network."""
+        discounted collisions to come, bootstrapped from its own target network. A
+        :class:`CostHead` reads ``critic_hidden``, the last hidden layers of the critic at
+        the batch and of the target critic at the next states, detached."""
         nets = self.networks
         assert nets.cost_critic is not None and nets.cost_critic_target is not None
         assert batch.costs is not None
+        hidden, next_hidden = critic_hidden
         with self._autocast(), torch.no_grad():
-            next_cost = nets.cost_critic_target(batch.next_obs, next_actions)
+            next_cost = self._cost(
+                nets.cost_critic_target, batch.next_obs, next_actions, next_hidden
+            )
         with self._autocast():
-            cost_q = nets.cost_critic(batch.obs, batch.actions)
+            cost_q = self._cost(nets.cost_critic, batch.obs, batch.actions, hidden)
         target = td_target(batch.costs, batch.terminated, next_cost, discount)
         loss = F.mse_loss(cost_q, target)
         assert self.cost_critic_optimizer is not None
@@ -342,15 +354,23 @@ class DDPG:
         (Stooke et al. 2020; OmniSafe's DDPG-Lag)."""
         cfg, nets = self.config, self.networks
         with self._autocast():
-            value = nets.critic(obs, action)
+            value, hidden = nets.critic.values_and_hidden(obs, action)
         if cfg.critic == "quantile":
             value = lower_tail_mean(value, cfg.cvar_alpha)
         if nets.cost_critic is not None and self.lagrangian is not None:
             price = self.lagrangian.multiplier
             with self._autocast():
-                cost = nets.cost_critic(obs, action)
+                cost = self._cost(nets.cost_critic, obs, action, hidden)
             value = (value - price * cost) / (1.0 + price)
         return value
+
+    @staticmethod
+    def _cost(
+        network: Critic | CostHead, obs: Tensor | SparseRows, action: Tensor, hidden: Tensor
+    ) -> Tensor:
+        """Q_c at ``(obs, action)``: a separate cost critic reads them, a cost head the
+        critic's last hidden layer there (``hidden``)."""
+        return network(hidden) if isinstance(network, CostHead) else network(obs, action)
 
     def _actor_loss(self, batch: Batch, preactivation: Tensor) -> tuple[Tensor, Tensor]:
         """From the actor's unbounded action ``p``: the loss, and the objective at the
@@ -377,14 +397,17 @@ class DDPG:
         collisions to come."""
         if cost and self.networks.cost_critic is None:
             raise ValueError("this agent has no cost critic (DDPGConfig.collision_budget)")
-        critic = self.networks.cost_critic if cost else self.critic
         if self.layout.parts is not None and not isinstance(observations, np.ndarray):
             observations = [self.layout.flat(o) for o in observations]
         x = torch.from_numpy(np.asarray(observations, dtype=np.float32).reshape(-1, self.obs_dim))
         unit = self.scale.to_unit(np.asarray(actions).reshape(len(x), -1), batch=True)
         inputs = SparseRows.from_dense(x).to(self.device) if self.sparse else x.to(self.device)
+        action = torch.from_numpy(unit.astype(np.float32)).to(self.device)
         with torch.no_grad(), self._autocast():
-            q = critic(inputs, torch.from_numpy(unit.astype(np.float32)).to(self.device))
+            q, hidden = self.critic.values_and_hidden(inputs, action)
+            if cost:
+                assert self.networks.cost_critic is not None
+                q = self._cost(self.networks.cost_critic, inputs, action, hidden)
         if q.dim() > 1:
             q = q.mean(dim=-1)
         return q.reshape(-1).double().cpu().numpy()

@@ -117,13 +117,38 @@ class Critic(nn.Module):
     def forward(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
         """Q-values (batch,), or (batch, outputs) where ``outputs`` > 1; float32 (also
         under autocast)."""
+        return self.values_and_hidden(obs, action)[0]
+
+    def values_and_hidden(self, obs: Tensor | SparseRows, action: Tensor) -> tuple[Tensor, Tensor]:
+        """The Q-values of :meth:`forward` and the last hidden layer's activations they
+        are read from (batch, ``hidden_sizes[-1]``), which a :class:`CostHead` reads."""
         x = obs if self.encoder is None else self.encoder(obs)
         # In place: addmm's backward needs only its inputs.
         x = torch.relu_(self.layers[0](x, action))
         for layer in self.layers[1:-1]:
             x = torch.relu_(layer(x))
         values = float32_layer(self.layers[-1], x)
-        return values.squeeze(-1) if self.outputs == 1 else values
+        return (values.squeeze(-1) if self.outputs == 1 else values), x
+
+
+class CostHead(nn.Module):
+    """A collision budget's Q_c read from a critic's last hidden layer: one hidden layer
+    as wide as that layer, ReLU, a linear output (``DDPGConfig.cost_critic=head``).
+
+    It sees what the reward critic has learned to tell apart, crashes included, at the
+    cost of a small MLP; the reward critic's trunk is not trained by its loss.
+    """
+
+    def __init__(self, in_features: int) -> None:
+        super().__init__()
+        self.layers = nn.ModuleList(
+            [nn.Linear(in_features, in_features), nn.Linear(in_features, 1)]
+        )
+
+    def forward(self, hidden: Tensor) -> Tensor:
+        """Q_c (batch,), float32 (also under autocast), from the critic's ``hidden``."""
+        x = torch.relu(self.layers[0](hidden))
+        return float32_layer(self.layers[-1], x).squeeze(-1)
 
 
 NETWORK_NAMES: tuple[str, ...] = ("actor", "critic", "actor_target", "critic_target")
@@ -135,13 +160,16 @@ TARGET_NAMES: tuple[str, ...] = ("actor_target", "critic_target", "cost_critic_t
 
 class ActorCritic(nn.Module):
     """DDPG's four networks: actor, critic and their slowly following targets; with a
-    ``cost_critic`` (a collision budget) that and its target too.
+    ``cost_critic`` (a collision budget: a :class:`Critic`, or a :class:`CostHead` on the
+    critic) that and its target too.
 
     Its ``state_dict()`` keys are ``actor.layers.0.weight``, ``critic_target.layers.4.bias``
     and so on: what FedAvg averages, checkpoints hold and the Flower wire carries.
     """
 
-    def __init__(self, actor: Actor, critic: Critic, cost_critic: Critic | None = None) -> None:
+    def __init__(
+        self, actor: Actor, critic: Critic, cost_critic: Critic | CostHead | None = None
+    ) -> None:
         super().__init__()
         self.actor = actor
         self.critic = critic
@@ -238,6 +266,18 @@ def build_network(
         network.encoder.reset_parameters(generator)
     init_mlp_(network.layers, generator)
     return network.to(device)
+
+
+def build_cost_head(
+    config: DDPGConfig, generator: torch.Generator, device: torch.device
+) -> CostHead:
+    """A :class:`CostHead` on a critic as ``config`` describes it, initialised from
+    ``generator`` alone (as :func:`build_network`)."""
+    with torch.device("meta"):
+        head = CostHead(config.hidden_sizes[-1])
+    head = head.to_empty(device="cpu")
+    init_mlp_(head.layers, generator)
+    return head.to(device)
 
 
 def make_adam(params: list[nn.Parameter], lr: float, device: torch.device) -> torch.optim.Adam:
