@@ -51,8 +51,9 @@ def small_config(**options: object) -> DDPGConfig:
     )  # fmt: skip
 
 
-def dash_agent(budget: float | None, seed: int = 0) -> DDPG:
-    return DDPG(ONE, ONE, small_config(collision_budget=budget), seed=seed)
+def dash_agent(budget: float | None, seed: int = 0, cost_critic: str = "head") -> DDPG:
+    costed = {} if budget is None else {"cost_critic": cost_critic}
+    return DDPG(ONE, ONE, small_config(collision_budget=budget, **costed), seed=seed)
 
 
 def pendulum_agent(**options: object) -> tuple[DDPG, gym.Env]:
@@ -155,6 +156,8 @@ def test_lower_tail_mean_by_hand() -> None:
         ({"collision_budget": 0.1, "lagrange_gains": (1.0, -1.0, 0.0)}, "lagrange_gains must"),
         ({"collision_budget": 0.1, "lagrange_gains": (1.0,)}, "lagrange_gains must"),
         ({"critic": "distributional"}, "critic must be one of expected, quantile"),
+        ({"cost_critic": "separate"}, "cost_critic tunes the collision budget"),
+        ({"collision_budget": 0.1, "cost_critic": "shared"}, "cost_critic must be one of"),
     ],
 )
 def test_bad_cost_options_are_refused_naming_the_key(overrides: dict, message: str) -> None:
@@ -164,7 +167,7 @@ def test_bad_cost_options_are_refused_naming_the_key(overrides: dict, message: s
 
 def test_cost_options_round_trip_a_dict() -> None:
     config = DDPGConfig(collision_budget=0.02, lagrange_gains=[5, 0.2, 1], critic="quantile",
-                        quantiles=16, cvar_alpha=0.25)  # fmt: skip
+                        quantiles=16, cvar_alpha=0.25, cost_critic="head")  # fmt: skip
     assert config.lagrange_gains == (5, 0.2, 1)
     assert DDPGConfig.from_dict(config.to_dict()) == config
 
@@ -179,10 +182,13 @@ def test_without_a_budget_the_agent_has_no_cost_critic_and_ignores_costs() -> No
     assert agent.buffer.costs.size == 0
 
 
-def test_a_budget_that_never_prices_a_crash_trains_exactly_as_no_budget() -> None:
+@pytest.mark.parametrize("cost_critic", ["separate", "head"])
+def test_a_budget_that_never_prices_a_crash_trains_exactly_as_no_budget(cost_critic: str) -> None:
     # Pendulum has no collisions: lambda stays 0, and the cost critic, built after the
-    # others from the same stream, changes neither their initial weights nor any draw.
-    (plain, env), (budgeted, other_env) = pendulum_agent(), pendulum_agent(collision_budget=0.1)
+    # others from the same stream, changes neither their initial weights nor any draw;
+    # a cost head's loss does not reach the critic it reads.
+    plain, env = pendulum_agent()
+    budgeted, other_env = pendulum_agent(collision_budget=0.1, cost_critic=cost_critic)
     plain.learn(env, 300)
     budgeted.learn(other_env, 300)
     assert budgeted.lagrangian.multiplier == 0.0
@@ -206,14 +212,19 @@ def test_n_step_transitions_carry_the_discounted_cost() -> None:
     assert restored.flush()[0].cost == 0.5
 
 
-def test_a_budget_is_met_on_a_small_problem_that_the_return_alone_crashes() -> None:
-    agent = dash_agent(0.1)
+@pytest.mark.parametrize("cost_critic", ["separate", "head"])
+def test_a_budget_is_met_on_a_small_problem_that_the_return_alone_crashes(
+    cost_critic: str,
+) -> None:
+    agent = dash_agent(0.1, cost_critic=cost_critic)
     costs = train_dash(agent, 1000)
     # The return alone drives at full speed into a crash every episode (the critic
     # learns 1 + a, whose gradient always says faster); under the budget:
     assert np.mean(costs[-300:]) < 0.3  # near the budget, the noise now and then over it
     assert agent.predict(np.ones(1, np.float32))[0][0] < 0.5  # the policy itself: none
-    assert agent.lagrangian.multiplier > 1.0  # a crash priced above the speed it buys
+    # A crash has its price; the separate critic's, at this seed, above the speed it buys
+    # (the head's Q_c is steeper in the action, so a smaller multiplier holds the budget).
+    assert agent.lagrangian.multiplier > (1.0 if cost_critic == "separate" else 0.1)
     # The cost critic learned that going fast crashes and going slow does not.
     fast, slow = agent.critic_values(np.ones((2, 1)), np.array([[1.0], [-1.0]]), cost=True)
     assert fast > 0.5 > 0.2 > slow
@@ -230,12 +241,15 @@ def test_a_cvar_actor_on_a_quantile_critic_trains() -> None:
     assert losses and all(np.isfinite(list(losses.values())))
 
 
-def test_checkpoints_hold_the_cost_critic_and_the_multiplier(tmp_path: Path) -> None:
-    agent = dash_agent(0.1, seed=3)
+@pytest.mark.parametrize("cost_critic", ["separate", "head"])
+def test_checkpoints_hold_the_cost_critic_and_the_multiplier(
+    tmp_path: Path, cost_critic: str
+) -> None:
+    agent = dash_agent(0.1, seed=3, cost_critic=cost_critic)
     train_dash(agent, 300)
     agent.episode_cost, agent.episode_steps = 1.0, 1  # an episode running at the save
     agent.save(tmp_path / "a.pt", include_buffer=True)
-    restored = dash_agent(0.1, seed=99)
+    restored = dash_agent(0.1, seed=99, cost_critic=cost_critic)
     restored.restore(tmp_path / "a.pt")
     assert restored.lagrangian.state_dict() == agent.lagrangian.state_dict()
     assert (restored.episode_cost, restored.episode_steps) == (1.0, 1)
@@ -248,6 +262,29 @@ def test_checkpoints_hold_the_cost_critic_and_the_multiplier(tmp_path: Path) -> 
     for key, tensor in state.items():
         assert torch.equal(tensor, other[key]), key
     assert restored.lagrangian.multiplier == agent.lagrangian.multiplier
+
+
+def test_a_cost_head_is_a_small_mlp_on_the_critics_last_hidden_layer() -> None:
+    state = dash_agent(0.1, cost_critic="head").federated_state()
+    head = {key: tuple(tensor.shape) for key, tensor in state.items() if "cost" in key}
+    assert head == {
+        f"{network}.layers.{layer}.{kind}": shape
+        for network in ("cost_critic", "cost_critic_target")
+        for layer, kind, shape in [(0, "weight", (16, 16)), (0, "bias", (16,)),
+                                   (1, "weight", (1, 16)), (1, "bias", (1,))]
+    }  # fmt: skip
+    separate = dash_agent(0.1, cost_critic="separate").federated_state()
+    assert separate["cost_critic.layers.0.weight"].shape == state["critic.layers.0.weight"].shape
+
+
+def test_a_budget_saved_before_the_cost_head_loads_with_a_separate_cost_critic() -> None:
+    saved = DDPGConfig(collision_budget=0.02, cost_critic="separate").to_dict()
+    del saved["cost_critic"]
+    assert DDPGConfig.from_dict(saved).cost_critic == "separate"
+    assert DDPGConfig(collision_budget=0.02).cost_critic == "head"
+    unbudgeted = DDPGConfig().to_dict()
+    del unbudgeted["cost_critic"]
+    assert DDPGConfig.from_dict(unbudgeted) == DDPGConfig.from_dict(DDPGConfig().to_dict())
 
 
 def test_cost_critic_targets_are_target_keys() -> None:

@@ -79,6 +79,7 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("agent.cvar_alpha=0.25", "cvar_alpha below 1 needs the return's quantiles"),
         # the paper's budget trains without a collision budget
         ("budget=paper agent.lagrange_window=10", "lagrange_window tunes the collision budget"),
+        ("budget=paper agent.cost_critic=separate", "cost_critic tunes the collision budget"),
     ],
 )
 def test_a_bad_override_to_frl_train(run_cli, override, text, tmp_path):

@@ -36,7 +36,10 @@ def agent_fields_as_run(data: dict[str, Any]) -> dict[str, Any]:
     :data:`FIELDS_ADDED_LATER` they lack at their old values, retired options
     (:mod:`frl.agents.retired`) at their off values dropped; one at any other value
     raises :class:`frl.agents.retired.RetiredOptionError`. The one place both are read."""
-    return without_retired({**FIELDS_ADDED_LATER, **data})
+    as_run = {**FIELDS_ADDED_LATER, **data}
+    if as_run.get("collision_budget") is not None:
+        as_run.setdefault("cost_critic", "separate")  # budgets saved before the cost head
+    return without_retired(as_run)
 
 
 def _require(condition: bool, message: str) -> None:
@@ -176,13 +179,14 @@ class DDPGConfig:
     units per collision and per unit of collision rate over budget."""
     lagrange_window: int = 50
     """Training episodes in the collision rate that the multiplier follows."""
-    cost_critic: str = "separate"
-    """What learns the budget's Q_c: ``separate``, a critic of its own as large as the
-    reward critic, with its own encoder; or ``head``, a small MLP (one hidden layer as
-    wide as the critic's last) on the reward critic's last hidden layer, which it reads
-    without training it, so the reward critic learns as it does without a budget and the
-    actor's objective takes one pass through the critic. The separate critic doubles the
-    critic's work in every update (docs/studies.md, "A cheaper cost critic")."""
+    cost_critic: str = "head"
+    """What learns the budget's Q_c: ``head``, a small MLP (one hidden layer as wide as
+    the critic's last) on the reward critic's last hidden layer, which it reads without
+    training it, so the reward critic learns as it does without a budget and the actor's
+    objective takes one pass through the critic; or ``separate``, a critic of its own as
+    large as the reward critic, with its own encoder, which doubles the critic's work in
+    every update and tested no safer (docs/studies.md, "A cheaper cost critic"). A budget
+    saved before this field learned a separate critic, and loads as one."""
     critic: str = "expected"
     """What the reward critic learns: ``expected``, the mean return (DDPG), or
     ``quantile``, ``quantiles`` quantiles of the return (QR-DQN's quantile Huber loss), so
