@@ -354,7 +354,10 @@ class DDPG:
         (Stooke et al. 2020; OmniSafe's DDPG-Lag)."""
         cfg, nets = self.config, self.networks
         with self._autocast():
-            value, hidden = nets.critic.values_and_hidden(obs, action)
+            if isinstance(nets.cost_critic, CostHead):
+                value, hidden = nets.critic.values_and_hidden(obs, action)
+            else:
+                value, hidden = nets.critic(obs, action), None
         if cfg.critic == "quantile":
             value = lower_tail_mean(value, cfg.cvar_alpha)
         if nets.cost_critic is not None and self.lagrangian is not None:
@@ -366,11 +369,15 @@ class DDPG:
 
     @staticmethod
     def _cost(
-        network: Critic | CostHead, obs: Tensor | SparseRows, action: Tensor, hidden: Tensor
-    ) -> Tensor:
+        network: Critic | CostHead, obs: Tensor | SparseRows, action: Tensor,
+        hidden: Tensor | None,
+    ) -> Tensor:  # fmt: skip
         """Q_c at ``(obs, action)``: a separate cost critic reads them, a cost head the
         critic's last hidden layer there (``hidden``)."""
-        return network(hidden) if isinstance(network, CostHead) else network(obs, action)
+        if isinstance(network, CostHead):
+            assert hidden is not None
+            return network(hidden)
+        return network(obs, action)
 
     def _actor_loss(self, batch: Batch, preactivation: Tensor) -> tuple[Tensor, Tensor]:
         """From the actor's unbounded action ``p``: the loss, and the objective at the
