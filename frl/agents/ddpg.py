@@ -410,11 +410,15 @@ class DDPG:
         unit = self.scale.to_unit(np.asarray(actions).reshape(len(x), -1), batch=True)
         inputs = SparseRows.from_dense(x).to(self.device) if self.sparse else x.to(self.device)
         action = torch.from_numpy(unit.astype(np.float32)).to(self.device)
+        cost_critic = self.networks.cost_critic
         with torch.no_grad(), self._autocast():
-            q, hidden = self.critic.values_and_hidden(inputs, action)
-            if cost:
-                assert self.networks.cost_critic is not None
-                q = self._cost(self.networks.cost_critic, inputs, action, hidden)
+            if not cost:
+                q = self.critic(inputs, action)
+            else:  # the reward critic's pass only where a cost head reads it
+                assert cost_critic is not None
+                head = isinstance(cost_critic, CostHead)
+                hidden = self.critic.values_and_hidden(inputs, action)[1] if head else None
+                q = self._cost(cost_critic, inputs, action, hidden)
         if q.dim() > 1:
             q = q.mean(dim=-1)
         return q.reshape(-1).double().cpu().numpy()
