@@ -208,7 +208,12 @@ def evaluate_policy(
     seed: int = 0,
     episodes: int = 100,
     tasks: Sequence[str] = TASKS,
-    yardsticks: Sequence[str] = ("full_throttle", "gap_acceptance", "oracle"),
+    yardsticks: Sequence[str] = (
+        "full_throttle",
+        "gap_acceptance",
+        "committed_gap_acceptance",
+        "oracle",
+    ),
     on_reset: Callable[[], None] | None = None,
     progress: bool = False,
     verbose: bool = True,
@@ -495,7 +500,7 @@ def format_table(results: dict[str, Any]) -> str:
 
 
 def _format_rows(title: str, table: dict[str, Any], per_task: bool = True) -> str:
-    columns = f"{title:<28} {'avg reward':>10} {'collision':>9} {'arrived':>8} {'timeout':>8} "
+    columns = f"{title:<37} {'avg reward':>10} {'collision':>9} {'arrived':>8} {'timeout':>8} "
     columns += f"{'travel time':>11} {'ep. steps':>9}"
     lines = [columns] if per_task else []
     rows = [*table["per_task"].items()] if per_task else []
@@ -503,7 +508,7 @@ def _format_rows(title: str, table: dict[str, Any], per_task: bool = True) -> st
     for name, m in rows:
         travel = "-" if m["average_travel_time"] is None else f"{m['average_travel_time']:.1f}"
         lines.append(
-            f"{name:<28} {m['average_reward']:>10.2f} {m['collision_rate']:>9.1%} "
+            f"{name:<37} {m['average_reward']:>10.2f} {m['collision_rate']:>9.1%} "
             f"{m['arrival_rate']:>8.1%} {m['timeout_rate']:>8.1%} {travel:>11} "
             f"{m['average_episode_steps']:>9.1f}"
         )

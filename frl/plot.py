@@ -44,8 +44,18 @@ BENCHMARK_RETURN = 6.0
 """The paper's benchmark return in Fig. 4 (Section IV.B)."""
 CURVE_POINTS = 400
 TASK_ORDER = ("left", "straight", "right", "average")
-YARDSTICKS = {"full_throttle": "full throttle", "gap_acceptance": "the rule", "oracle": "oracle"}
-YARDSTICK_COLORS = {"full_throttle": "0.55", "gap_acceptance": "tab:orange", "oracle": "tab:purple"}
+YARDSTICKS = {
+    "full_throttle": "full throttle",
+    "gap_acceptance": "the rule",
+    "committed_gap_acceptance": "the committed rule",
+    "oracle": "oracle",
+}
+YARDSTICK_COLORS = {
+    "full_throttle": "0.55",
+    "gap_acceptance": "tab:orange",
+    "committed_gap_acceptance": "tab:brown",
+    "oracle": "tab:purple",
+}
 TEST_METRICS = (
     ("average_reward", "test return", 1.0),
     ("collision_rate", "collisions (%)", 100.0),

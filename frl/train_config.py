@@ -43,7 +43,7 @@ from frl.federation.plan import (
 from frl.federation.round_tests import RoundTester
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores, threads_per_worker
-from frl.policies import YARDSTICKS
+from frl.policies import YARDSTICKS, check_teacher
 from frl.run_directory import read_saved_config
 
 
@@ -197,7 +197,12 @@ class TrainSchema:
     """Test episodes per task after every round, on seeds of their own (the per-round test
     curve, ``eval/round/...``); 0: none."""
     yardsticks: list[str] = field(
-        default_factory=lambda: ["full_throttle", "gap_acceptance", "oracle"]
+        default_factory=lambda: [
+            "full_throttle",
+            "gap_acceptance",
+            "committed_gap_acceptance",
+            "oracle",
+        ]
     )
     """Yardstick policies tested on the same seeds beside the model (frl.policies)."""
     progress: bool = True
@@ -396,6 +401,7 @@ def validate(
         vehicle_envs = _vehicle_envs(env_config, plan.fleet_size, federation)
         reward_config = RewardConfig(**reward)
         agent_config = DDPGConfig.from_dict(agent)
+        check_teacher(agent_config.guide, env_config.route_observation)
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
     if plan.aggregates and strategy.needs_global_model and not plan.shares_initial_model:

@@ -96,7 +96,7 @@ def test_the_imitation_term_pulls_the_actor_to_the_teacher():
     [
         ({"guide": "oracle"}, "guide must be one of"),
         ({"guide_weight": -1.0}, "guide_weight"),
-        ({"guide": "none", "guide_weight": 1.0}, "set guide=gap_acceptance"),
+        ({"guide": "none", "guide_weight": 1.0}, "set guide to one of gap_acceptance, commi"),
     ],
 )
 def test_bad_guide_settings_fail_clearly(options, message):

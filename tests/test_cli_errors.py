@@ -70,6 +70,11 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("round_test_episodes=-2", "round_test_episodes must be a non-negative integer"),
         ("device=gpu0", "device='gpu0' is not a torch device"),
         ("agent.guide=oracle", "guide must be one of none, gap_acceptance"),
+        (
+            "agent=ddpg-guided agent.guide=committed_gap_acceptance",
+            "reads the distance to the stop line from the student's observation: set "
+            "env.route_observation=true",
+        ),
         ("agent.replay=lap", "agent.replay='lap' was retired: docs/studies.md"),
         ("agent.twin_critics=true", "agent.twin_critics=True was retired"),
         ("env.route_observation=maybe", "route_observation"),

@@ -7,8 +7,10 @@ import pytest
 
 from frl.envs import EnvConfig, GridConfig, IntersectionEnv, traffic_preset
 from frl.episodes import run_episode, run_episodes
+from frl.federation.plan import evaluation_seeds
 from frl.policies import (
     YARDSTICKS,
+    CommittedGapAcceptancePolicy,
     GapAcceptancePolicy,
     LookaheadOracle,
     always_brake,
@@ -124,6 +126,63 @@ def test_gap_acceptance_collides_less_than_full_throttle_and_arrives():
         env.close()
     assert sum(r.collision for r in rules) < sum(r.collision for r in blind)
     assert sum(r.arrived for r in rules) >= len(SEEDS) - 1
+
+
+def _route(distance_m):
+    return np.array([1.0, 0.0, 0.0, distance_m / 10.0], np.float32)
+
+
+def test_the_committed_rule_is_the_plain_rule_until_it_cannot_stop_before_the_line():
+    plain, committed = GapAcceptancePolicy(), CommittedGapAcceptancePolicy()
+    # A car 45 m to the left will meet a rolling ego (3 m/s): the plain rule brakes.
+    grid = _grid_with(-45.0, 15.0, 15.0, 90.0, ego_speed=3.0)
+    assert plain(grid).tolist() == [-1.0]
+    # 10 m before the line the ego can still stop (4.5 m at 1 m/s^2): it brakes too.
+    assert committed({"grid": grid, "route": _route(10.0)}).tolist() == [-1.0]
+    # 4 m before it, or past it, it can no longer stop short: it goes.
+    assert committed({"grid": grid, "route": _route(4.0)}).tolist() == [1.0]
+    assert committed({"grid": grid, "route": _route(-2.0)}).tolist() == [1.0]
+    standing = _grid_with(-70.0, 15.0, 15.0, 90.0)
+    assert committed({"grid": standing, "route": _route(-0.5)}).tolist() == [1.0]
+    assert committed({"grid": standing, "route": _route(3.0)}).tolist() == [-1.0]
+    # On the grid alone it reads the distance from its source, here the env's.
+    told = CommittedGapAcceptancePolicy(stop_line_distance=lambda: 4.0)
+    assert told(grid).tolist() == [1.0]
+    with pytest.raises(ValueError, match=r"distance to the stop line.*route_observation=true"):
+        committed(grid)
+
+
+def test_the_committed_rule_never_brakes_past_the_line_and_collides_less_than_the_plain_rule():
+    """Run seed 0's first 40 left-turn test episodes: the plain rule collides in three of
+    them, each after braking with its nose past the line."""
+    seeds = evaluation_seeds(0, "left", 40)
+    env = IntersectionEnv(EnvConfig(task="left"))
+    decisions = []  # (distance to the line, braking distance, action), committed rule
+
+    def watched(rule):
+        def drive(observation):
+            action = rule(observation)
+            speed = float(observation[13, 2, 0]) * GRID.speed_scale
+            decisions.append((env.stop_line_distance_m, speed * speed / 2.0, float(action[0])))
+            return action
+
+        return drive
+
+    try:
+        plain = run_episodes(env, watched(GapAcceptancePolicy(env.config)), "left", seeds)
+        braked_past_line = sum(a < 0 and d < 0 for d, _, a in decisions)
+        decisions.clear()
+        committed_rule = make_yardstick("committed_gap_acceptance", env)
+        committed = run_episodes(env, watched(committed_rule), "left", seeds)
+    finally:
+        env.close()
+    assert braked_past_line > 0  # the plain rule waits inside the junction
+    assert all(a == 1.0 for d, braking, a in decisions if braking >= d)
+    assert any(a < 0 for *_, a in decisions)  # it still waits, before the line
+    plain_collisions = sum(r.collision for r in plain)
+    assert plain_collisions >= 3
+    assert sum(r.collision for r in committed) < plain_collisions
+    assert sum(r.arrived for r in committed) >= sum(r.arrived for r in plain)
 
 
 def test_oracle_arrives_where_full_throttle_collides_and_its_plan_replays(left_env):

@@ -13,7 +13,7 @@ from frl.agents.retired import without_retired
 NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
 ENCODERS: tuple[str, ...] = ("flat", "vehicles")
 ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
-GUIDES: tuple[str, ...] = ("none", "gap_acceptance")
+GUIDES: tuple[str, ...] = ("none", "gap_acceptance", "committed_gap_acceptance")
 CRITICS: tuple[str, ...] = ("expected", "quantile")
 COST_CRITICS: tuple[str, ...] = ("separate", "head")
 
@@ -141,12 +141,14 @@ class DDPGConfig:
     almost no gradient passes, so an actor stuck at full throttle cannot learn to brake
     where its critic has learned that it should."""
     guide: str = "none"
-    """A teacher whose action is stored with every transition: ``none``, or
-    ``gap_acceptance``, frl's rule-based driver (:class:`frl.policies.GapAcceptancePolicy`,
-    installed by whoever drives the agent: :meth:`frl.agents.DDPG.set_guide`; frl's
-    vehicles do). What the teacher's actions are used for: ``guide_weight``. An agent
-    with a guide learns from the teacher as well as from its
-    own driving: a guided agent, not the paper's."""
+    """A teacher whose action is stored with every transition: ``none``;
+    ``gap_acceptance``, frl's rule-based driver on the grid
+    (:class:`frl.policies.GapAcceptancePolicy`); or ``committed_gap_acceptance``, the
+    same rule told the distance to the stop line, which it reads from the student's
+    route observation (``env.route_observation=true``). Installed by whoever drives the
+    agent: :meth:`frl.agents.DDPG.set_guide`; frl's vehicles do. What the teacher's
+    actions are used for: ``guide_weight``. An agent with a guide learns from the teacher
+    as well as from its own driving: a guided agent, not the paper's."""
     guide_weight: float = 0.0
     """Weight of the imitation term in the actor's loss, the squared distance between the
     actor's action and the teacher's on every sampled state (DDPG from demonstrations,
@@ -234,7 +236,7 @@ class DDPGConfig:
         )
         _require(
             self.guide != "none" or self.guide_weight == 0,
-            "guide_weight learns from a teacher: set guide=gap_acceptance",
+            "guide_weight learns from a teacher: set guide to one of " + ", ".join(GUIDES[1:]),
         )
         self._check_cost_options()
 

@@ -216,15 +216,28 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         observation = self._observation(self._grid(self._vehicles, ego))
         return observation, self._info(collision=False, arrived=False, terms=None)
 
+    @property
+    def stop_line_distance_m(self) -> float:
+        """Metres from the ego to the stop line along its route (negative past it).
+
+        The env always knows it, whatever the observation holds: a yardstick that reads
+        it (``committed_gap_acceptance``) gets it here when the model under test sees the
+        paper's grid alone."""
+        return self.config.scenario.ego_start_distance - self._travelled
+
+    def route(self) -> np.ndarray:
+        """The ego's route now: the task one-hot and the distance to the stop line in units
+        of :data:`ROUTE_DISTANCE_SCALE_M` (what ``route_observation`` adds to the grid)."""
+        route = np.zeros(4, np.float32)
+        route[TASKS.index(self._task)] = 1.0
+        route[3] = self.stop_line_distance_m / ROUTE_DISTANCE_SCALE_M
+        return route
+
     def _observation(self, grid: np.ndarray) -> Any:
         """The grid, or with ``route_observation`` the grid and the ego's route."""
         if not self.config.route_observation:
             return grid
-        route = np.zeros(4, np.float32)
-        route[TASKS.index(self._task)] = 1.0
-        distance = self.config.scenario.ego_start_distance - self._travelled
-        route[3] = distance / ROUTE_DISTANCE_SCALE_M
-        return {"grid": grid, "route": route}
+        return {"grid": grid, "route": self.route()}
 
     def snapshot(self) -> EnvSnapshot:
         """The env's state now, for :meth:`restore` (a look-ahead, for instance).

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from frl.envs.config import EnvConfig
+from frl.envs.intersection import ROUTE_DISTANCE_SCALE_M
 
 
 class GapAcceptancePolicy:
@@ -23,7 +24,9 @@ class GapAcceptancePolicy:
     along the ego's heading (after a turn, or behind) are left to SUMO's car following.
 
     It reads nothing but the observation's grid: no position of its own, no task (even
-    where the observation has the route), no SUMO.
+    where the observation has the route), no SUMO. The grid cannot show where the stop
+    line is, so it may brake with its nose already in the junction, waiting there for a
+    far-lane car: :class:`CommittedGapAcceptancePolicy` is the same rule told the line.
     Cars beyond the grid's 80 m reach stay unseen, so some collisions remain.
     """
 
@@ -58,13 +61,17 @@ class GapAcceptancePolicy:
         if isinstance(observation, Mapping):  # the env's route_observation: the grid alone
             observation = observation["grid"]
         rows, cols = np.nonzero(observation[..., 2] > 0)
-        ego_speed = float(observation[self._ego_cell][0]) * self._speed_scale
+        ego_speed = self._ego_speed(observation)
         for row, col in zip(rows.tolist(), cols.tolist(), strict=True):
             if (row, col) == self._ego_cell:
                 continue
             if self._conflicts(observation, row, col, ego_speed):
                 return np.array([-1.0], dtype=np.float32)
         return np.array([1.0], dtype=np.float32)
+
+    def _ego_speed(self, grid: np.ndarray) -> float:
+        """The ego's speed (m/s), read from its own cell of the grid."""
+        return float(grid[self._ego_cell][0]) * self._speed_scale
 
     def _conflicts(self, observation: np.ndarray, row: int, col: int, ego_speed: float) -> bool:
         lateral = float(self._lateral[row])
@@ -94,3 +101,54 @@ class GapAcceptancePolicy:
         """Seconds the ego needs for ``distance`` metres at full throttle from ``speed``."""
         a = self._acceleration
         return (-speed + math.sqrt(speed * speed + 2.0 * a * distance)) / a
+
+
+class CommittedGapAcceptancePolicy(GapAcceptancePolicy):
+    """The gap-acceptance rule that never waits inside the junction.
+
+    Once the ego can no longer stop before the stop line (its braking distance
+    v^2 / 2a reaches the distance left to the line, or it is past the line), it goes at
+    full throttle: it has committed. Before that it is :class:`GapAcceptancePolicy`.
+    The plain rule's collisions come after it braked with its nose past the line, where
+    a car in the near lane hits it while it waits for one in the far lane
+    (docs/studies.md, "The committed rule").
+
+    The distance to the line comes from the observation's route (the env's
+    ``route_observation``), or, where the observation is the paper's grid alone, from
+    ``stop_line_distance``, a callable that returns it in metres
+    (:func:`frl.policies.make_yardstick` passes the env's
+    :attr:`~frl.envs.IntersectionEnv.stop_line_distance_m`). It reads no other route
+    information: not the task, not the destination.
+
+    Raises:
+        ValueError: when called on an observation without the route and no
+            ``stop_line_distance`` was given.
+    """
+
+    def __init__(
+        self,
+        env: EnvConfig | None = None,
+        stop_line_distance: Callable[[], float] | None = None,
+        **rule: float,
+    ) -> None:
+        super().__init__(env, **rule)
+        self._stop_line_distance = stop_line_distance
+
+    def __call__(self, observation: Any) -> np.ndarray:
+        grid = observation["grid"] if isinstance(observation, Mapping) else observation
+        braking_distance = self._ego_speed(grid) ** 2 / (2.0 * self._acceleration)
+        if braking_distance >= self.distance_to_line(observation):
+            return np.array([1.0], dtype=np.float32)
+        return super().__call__(grid)
+
+    def distance_to_line(self, observation: Any) -> float:
+        """Metres from the ego to the stop line (negative past it)."""
+        if isinstance(observation, Mapping) and "route" in observation:
+            return float(np.asarray(observation["route"]).reshape(-1)[3]) * ROUTE_DISTANCE_SCALE_M
+        if self._stop_line_distance is None:
+            raise ValueError(
+                "committed_gap_acceptance reads the distance to the stop line: give it "
+                "observations with the route (env.route_observation=true) or the env's "
+                "stop_line_distance"
+            )
+        return float(self._stop_line_distance())

@@ -28,6 +28,7 @@ YARDSTICK_STYLES = {
     "full_throttle": {"color": "black", "linestyle": "--"},
     "oracle": {"color": "tab:purple", "linestyle": "-"},
     "gap_acceptance": {"color": "tab:orange", "linestyle": "-."},
+    "committed_gap_acceptance": {"color": "tab:brown", "linestyle": (0, (3, 1, 1, 1))},
     "always_brake": {"color": "gray", "linestyle": ":"},
 }
 
