@@ -125,6 +125,9 @@ class RunState:
     "per_task", "average"}`` of the deployed model on the round-test seeds."""
     round_test_s: float = 0.0
     """Seconds the round tests took, summed over rounds (inside ``wall_time_s``)."""
+    budget_rounds: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    """Each vehicle's rounds as the collision budget counts them: episodes, collisions and
+    the multiplier at the round's end (:func:`frl.federation.budget_state.round_record`)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -21,6 +21,7 @@ from frl.agents.config import DDPGConfig
 from frl.agents.precision import precision_report
 from frl.budget import updates_due
 from frl.envs.config import traffic_name
+from frl.federation.budget_state import budget_end_state, budget_lines
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.coordinator import run_logged
 from frl.federation.plan import FederationPlan
@@ -128,6 +129,8 @@ def train(
             raise
 
     results = training_results(settings, state, run_dir)
+    for line in budget_lines(results["training"]["collision_budget"] or {}):
+        log.info("collision budget, %s", line)
     previous = rundir.read_results(run_dir)
     if previous is not None and "evaluation" in previous:  # keep an earlier evaluation
         results["evaluation"] = previous["evaluation"]
@@ -221,6 +224,20 @@ def round_tests_section(settings: TrainSettings, state: RunState) -> dict[str, A
     }
 
 
+def collision_budget_state(settings: TrainSettings, state: RunState) -> dict[str, Any] | None:
+    """Each vehicle's collision budget at the end of training (None without a budget):
+    its last round's training collision rate, whether that kept the budget, and whether
+    its multiplier levelled off (:func:`frl.federation.budget_state.budget_end_state`)."""
+    budget = settings.agent.collision_budget
+    if budget is None:
+        return None
+    return {
+        name: budget_end_state(state.budget_rounds[name], budget)
+        for name in (spec.name for spec in settings.client_specs())
+        if state.budget_rounds.get(name)
+    }
+
+
 def training_results(settings: TrainSettings, state: RunState, run_dir: Path) -> dict[str, Any]:
     """The training and communication sections of ``results.json``."""
     plan = settings.plan
@@ -288,6 +305,7 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
             "episodes": state.episodes,
             "collisions": state.collisions,
             "arrivals": state.arrivals,
+            "collision_budget": collision_budget_state(settings, state),
             "dropped_clients": state.dropped_clients,
             "final_step_reward": float(step_rewards[-tail:].mean()) if len(step_rewards) else None,
             "final_step_reward_definition": (

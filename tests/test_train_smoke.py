@@ -58,6 +58,14 @@ def test_each_scheme_trains_logs_and_tests(scheme, tmp_path, capsys):
     ]  # fmt: skip
     assert saved["clients"] == clients
     assert all(saved["training"]["episodes"][c] >= 1 for c in clients)
+    # The default collision budget's end state, per vehicle, from its rounds' episodes.
+    budget = saved["training"]["collision_budget"]
+    assert list(budget) == clients
+    for client in clients:
+        assert len(budget[client]["multiplier_per_round"]) == 3
+        last_rate = budget[client]["collision_rate_per_round"][-1]
+        assert budget[client]["last_round_collision_rate"] == last_rate
+        assert budget[client]["kept"] == (last_rate <= 1.5 * 0.02)
     communication = saved["communication"]
     assert set(communication) == COMMUNICATION_KEYS
     if scheme == "fedavg":
@@ -75,7 +83,12 @@ def test_each_scheme_trains_logs_and_tests(scheme, tmp_path, capsys):
     assert evaluation["per_task"]["left"]["episodes"] == 2
     assert "travel_time_definition" in evaluation
     assert evaluation["traffic"] == "paper"
-    assert list(evaluation["yardsticks"]) == ["full_throttle", "gap_acceptance", "oracle"]
+    assert list(evaluation["yardsticks"]) == [
+        "full_throttle",
+        "gap_acceptance",
+        "committed_gap_acceptance",
+        "oracle",
+    ]
     for table in evaluation["yardsticks"].values():
         assert set(table["per_task"]) == set(evaluation["per_task"])
         assert table["per_task"]["left"]["episodes"] == 2

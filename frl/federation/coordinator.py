@@ -34,6 +34,7 @@ from torch import Tensor
 from frl import run_directory as rundir
 from frl.agents.checkpoint import read_checkpoint, write_checkpoint
 from frl.agents.ddpg import is_target_key
+from frl.federation.budget_state import round_record
 from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool
 from frl.federation.fedavg import state_nbytes
@@ -407,6 +408,9 @@ def _count_episodes(state: RunState, updates: list[LocalUpdate]) -> None:
             e.collision for e in update.episodes
         )
         state.arrivals[name] = state.arrivals.get(name, 0) + sum(e.arrived for e in update.episodes)
+        state.budget_rounds.setdefault(name, []).append(
+            round_record(update.episodes, update.losses.get("lagrange_multiplier"))
+        )
         if update.episodes:
             state.last_returns[name] = update.episodes[-1].episode_return
             window = state.recent_returns.get(name, []) + [
