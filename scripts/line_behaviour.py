@@ -1,0 +1,142 @@
+"""What a trained driver does at the stop line, and whether its networks read the line.
+
+    python scripts/line_behaviour.py RUN_DIR [--episodes N]
+
+Drives the run's model, the plain gap-acceptance rule and the committed rule on the run's
+first ``N`` test episodes per task (its own test seeds) and, for each, counts:
+
+- **waited inside**: episodes where the car braked with its nose past the stop line
+  (action < 0 at a negative distance to the line, before it left the junction's
+  first 15 m) and how many of those collided, against the collisions of the others;
+- **speed at the line**: the mean speed when the car crossed the line (m/s).
+
+For a model that observes its route (``env.route_observation=true``) it then asks, on
+every state it visited within 10 m of the line, what the networks make of the distance:
+the actor's action and the critic's Q(s, brake) - Q(s, go) with the distance set to 5 m
+before the line against 2 m past it, the grid unchanged. A network that does not read
+the line answers the same for both.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from frl import run_directory as rundir
+from frl.agents import DDPG, SparseRows
+from frl.envs import IntersectionEnv
+from frl.envs.intersection import ROUTE_DISTANCE_SCALE_M
+from frl.evaluate import run_settings
+from frl.federation.plan import evaluation_seeds
+from frl.policies import install_guide, make_yardstick
+
+JUNCTION_DEPTH_M = 15.0
+"""Braking counts as waiting inside while the car is past the line by less than this."""
+
+
+def drive(env: IntersectionEnv, policy, seeds: list[int]) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    """Drive ``seeds`` and count waits inside the junction and their collisions."""
+    inside = inside_collisions = other_collisions = 0
+    line_speeds = []
+    for seed in seeds:
+        observation, _ = env.reset(seed=seed)
+        waited, crossed = False, False
+        while True:
+            before = env.stop_line_distance_m
+            action = float(np.asarray(policy(observation)).reshape(-1)[0])
+            if action < 0 and -JUNCTION_DEPTH_M < before < 0:
+                waited = True
+            observation, _, terminated, truncated, info = env.step([action])
+            if not crossed and env.stop_line_distance_m <= 0 < before:
+                crossed = True
+                line_speeds.append(info["ego_speed"])
+            if terminated or truncated:
+                break
+        inside += waited
+        inside_collisions += waited and info["collision"]
+        other_collisions += (not waited) and info["collision"]
+    return {
+        "episodes": len(seeds),
+        "waited_inside": inside,
+        "collisions_after_waiting_inside": inside_collisions,
+        "other_collisions": other_collisions,
+        "speed_at_line": float(np.mean(line_speeds)) if line_speeds else float("nan"),
+    }
+
+
+def line_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[str, float]:
+    """The actor's and critic's answers with the distance set before against past the line."""
+    states = []
+    for seed in seeds:
+        observation, _ = env.reset(seed=seed)
+        while True:
+            if abs(env.stop_line_distance_m) <= 10.0:
+                states.append(agent.layout.flat(observation))
+            action = agent.act(observation, explore=False)
+            observation, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                break
+    flat = np.stack(states).astype(np.float32)
+    distance_column = agent.layout.num_features - 1  # the route's last entry
+    answers = {}
+    for name, metres in (("before", 5.0), ("past", -2.0)):
+        moved = flat.copy()
+        moved[:, distance_column] = metres / ROUTE_DISTANCE_SCALE_M
+        x = torch.from_numpy(moved)
+        obs = SparseRows.from_dense(x) if agent.sparse else x
+        with torch.no_grad():
+            actions = agent.actor(obs).reshape(-1).numpy()
+            brake = agent.critic(obs, -torch.ones(len(x), 1))
+            go = agent.critic(obs, torch.ones(len(x), 1))
+        answers[f"action_{name}"] = float(actions.mean())
+        answers[f"brake_minus_go_{name}"] = float((brake - go).mean())
+    answers["states"] = len(states)
+    return answers
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", type=Path)
+    parser.add_argument("--episodes", type=int, default=100)
+    args = parser.parse_args()
+    settings = run_settings(args.run_dir)
+    files = rundir.model_files(args.run_dir)
+    for task, paths in files.items():
+        seeds = evaluation_seeds(settings.seed, task, args.episodes)
+        env = IntersectionEnv(replace(settings.eval_env(task), task=task))
+        try:
+            agent = DDPG.from_checkpoint(paths[0], env.observation_space, env.action_space)
+            install_guide(agent, env.config)
+            drivers = {
+                "model": lambda o, agent=agent: agent.act(o, explore=False),
+                "gap acceptance": make_yardstick("gap_acceptance", env),
+                "committed rule": make_yardstick("committed_gap_acceptance", env),
+            }
+            for name, policy in drivers.items():
+                counts = drive(env, policy, seeds)
+                print(
+                    f"{task:<9} {name:<15} waited inside {counts['waited_inside']:>3}/"
+                    f"{counts['episodes']} (collided after it "
+                    f"{counts['collisions_after_waiting_inside']}, other collisions "
+                    f"{counts['other_collisions']}), "
+                    f"speed at the line {counts['speed_at_line']:.2f} m/s"
+                )
+            if settings.env.route_observation:
+                reading = line_reading(agent, env, seeds)
+                print(
+                    f"{task:<9} model reads the line on {reading['states']} states within 10 m: "
+                    f"action {reading['action_before']:+.3f} (5 m before) vs "
+                    f"{reading['action_past']:+.3f} (2 m past); Q(brake) - Q(go) "
+                    f"{reading['brake_minus_go_before']:+.3f} vs "
+                    f"{reading['brake_minus_go_past']:+.3f}"
+                )
+        finally:
+            env.close()
+
+
+if __name__ == "__main__":
+    main()
