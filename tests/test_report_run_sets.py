@@ -18,11 +18,14 @@ def _table(reward: float, collisions: float, tasks: tuple[str, ...]) -> dict:
 
 
 def _write_run(directory, reward, collisions, rule=None, tasks=("left", "straight", "right"),
-               train_freq=1, total_steps=10_000, precision="float32", clone=False):  # fmt: skip
+               train_freq=1, total_steps=10_000, precision="float32", clone=False,
+               committed=None):  # fmt: skip
     directory.mkdir(parents=True)
     evaluation = _table(reward, collisions, tasks)
     if rule is not None:
         evaluation["yardsticks"] = {"gap_acceptance": _table(*rule, tasks)}
+    if committed is not None:
+        evaluation["yardsticks"]["committed_gap_acceptance"] = _table(*committed, tasks)
     results = {"evaluation": evaluation, "versions": {"git_commit": "abcdef0123"}}
     if clone:
         results["clone"] = {"steps_per_task": 30_000, "updates": 9_000}
@@ -38,9 +41,9 @@ def _write_run(directory, reward, collisions, rule=None, tasks=("left", "straigh
 def root(tmp_path):
     study = tmp_path / "study-ratio"
     _write_run(study / "tf8" / "fedavg-seed0", 6.0, 0.10, rule=(6.5, 0.04), train_freq=8,
-               total_steps=80_000)  # fmt: skip
+               total_steps=80_000, committed=(7.0, 0.0))  # fmt: skip
     _write_run(study / "tf8" / "fedavg-seed1", 5.0, 0.20, rule=(6.7, 0.02), train_freq=8,
-               total_steps=80_000)  # fmt: skip
+               total_steps=80_000, committed=(7.1, 0.01))  # fmt: skip
     _write_run(study / "left-seed0", 4.0, 0.30, tasks=("left",), precision="bf16")
     _write_run(tmp_path / "study-clone" / "clone-seed3", 6.6, 0.03, rule=(6.6, 0.03), clone=True)
     _write_run(tmp_path / "fig4" / "fedavg-seed0", 1.0, 0.5)  # an edition's: not a study
@@ -69,13 +72,17 @@ def test_a_row_gives_budget_precision_means_and_the_rule_paired_seed_by_seed(roo
     # paired returns -0.5 and -1.7: mean -1.1, half 12.706 * 0.8485 / 1.4142 = 7.62;
     # collisions +6 and +18 pp: mean 12, half 12.706 * 8.485 / 1.4142 = 76.2
     assert cells[10] == "-1.10 ± 7.62 / 12.0 ± 76.2 pp"
+    # The committed rule beside it: paired -1.0 and -2.1, +10 and +19 pp.
+    assert cells[11] == "7.05 / 0.5% / 99.5% / 50.0"
+    # mean -1.55, half 12.706 * 0.7778 / 1.4142 = 6.99; 14.5 pp, half 12.706 * 6.364 / 1.4142
+    assert cells[12] == "-1.55 ± 6.99 / 14.5 ± 57.2 pp"
 
 
 def test_rows_without_the_rule_or_a_task_say_so_and_a_clone_gives_its_fitting(root):
     lines = studies_block(study_run_sets(root)).splitlines()
     left = next(line for line in lines if line.startswith("| `left`"))
     assert "bf16 · abcdef0" in left and "30.0% / – / –" in left
-    assert left.rstrip(" |").endswith("– | –")
+    assert left.rstrip(" |").endswith("– | – | – | –")
     clone = next(line for line in lines if line.startswith("| `clone`"))
     assert "30,000 / 9,000 (cloned)" in clone and "6.60 (n=1)" in clone
 

@@ -192,6 +192,9 @@ class TestedCurve:
 RULE = "gap_acceptance"
 """The yardstick a learned driver is paired against: the memoryless rule on the grid."""
 
+COMMITTED_RULE = "committed_gap_acceptance"
+"""The same rule told the distance to the stop line: it never waits inside the junction."""
+
 
 def tested_curve(runs: list[RunRecord], settings: CurveSettings) -> TestedCurve:
     """The per-round test curve of one scheme's runs (each made with the curve on)."""

@@ -23,7 +23,7 @@ import yaml
 
 from frl.budget import updates_due
 from frl.fileio import read_json
-from frl.report.aggregate import RULE
+from frl.report.aggregate import COMMITTED_RULE, RULE
 from frl.report.markdown import fmt, table
 from frl.report.measures import test_metric, yardstick_metric
 from frl.report.runs import RunDataError, read_config
@@ -50,8 +50,8 @@ class StudyRun:
     def tested(self, name: str, task: str = "average") -> float | None:
         return test_metric(name, task)(self)  # type: ignore[arg-type]
 
-    def rule(self, name: str) -> float | None:
-        return yardstick_metric(RULE, name)(self)  # type: ignore[arg-type]
+    def rule(self, name: str, yardstick: str = RULE) -> float | None:
+        return yardstick_metric(yardstick, name)(self)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -121,14 +121,17 @@ HEADER = (
     "collisions left / straight / right",
     "the rule: return / collisions / arrivals / travel",
     "minus the rule, paired: return / collisions",
+    "the committed rule: return / collisions / arrivals / travel",
+    "minus the committed rule, paired: return / collisions",
 )
 LEGEND = (
     "Test figures are means over the seeds with 95% t intervals (n=1: one seed), each run "
     "tested on {episodes} episodes per task and averaged over the tasks it tested. Updates "
     "per vehicle count those due (one every `agent.train_freq` steps after "
     "`agent.learning_starts`). The rule is the gap-acceptance driver on the same "
-    "test episodes (– where a run predates it as a yardstick); the paired difference "
-    "is taken seed by seed. Precision is the one the runs trained in; commit is the "
+    "test episodes, the committed rule the same driver told the distance to the stop "
+    "line (– where a run predates it as a yardstick: `python -m frl.evaluate RUN_DIR "
+    "--policy NAME` adds it); the paired difference is taken seed by seed. Precision is the one the runs trained in; commit is the "
     "code's (`versions.git_commit` of `results.json`)."
 )
 
@@ -145,8 +148,10 @@ def _row(run_set: RunSet) -> list[str]:
         fmt(_mean(runs, lambda r: r.tested("arrival_rate")), digits=1, percent=True),
         fmt(_mean(runs, lambda r: r.tested("average_travel_time")), digits=1),
         " / ".join(_task_collisions(runs, task) for task in TASK_COLUMNS),
-        _rule_row(runs),
-        _minus_rule_row(runs),
+        _rule_row(runs, RULE),
+        _minus_rule_row(runs, RULE),
+        _rule_row(runs, COMMITTED_RULE),
+        _minus_rule_row(runs, COMMITTED_RULE),
     ]
 
 
@@ -186,11 +191,11 @@ def _task_collisions(runs: Iterable[StudyRun], task: str) -> str:
     return "–" if estimate is None else f"{100 * estimate.mean:.1f}%"
 
 
-def _rule_row(runs: Iterable[StudyRun]) -> str:
-    """The rule's means on the runs' seeds, compact; – where no run tested it."""
+def _rule_row(runs: Iterable[StudyRun], yardstick: str) -> str:
+    """A rule's means on the runs' seeds, compact; – where no run tested it."""
     columns = []
     for name, scale, form in RULE_COLUMNS:
-        estimate = _mean(runs, lambda r, n=name: r.rule(n))
+        estimate = _mean(runs, lambda r, n=name: r.rule(n, yardstick))
         if estimate is None:
             return "–"
         columns.append(form.format(scale * estimate.mean))
@@ -205,16 +210,16 @@ RULE_COLUMNS = (
 )
 
 
-def _minus_rule_row(runs: Iterable[StudyRun]) -> str:
-    returns = _mean(runs, lambda r: _minus_rule(r, "average_reward"))
+def _minus_rule_row(runs: Iterable[StudyRun], yardstick: str) -> str:
+    returns = _mean(runs, lambda r: _minus_rule(r, "average_reward", yardstick))
     if returns is None:
         return "–"
-    collisions = _mean(runs, lambda r: _minus_rule(r, "collision_rate"))
+    collisions = _mean(runs, lambda r: _minus_rule(r, "collision_rate", yardstick))
     return f"{fmt(returns)} / {fmt(collisions, digits=1, percent=True, unit=' pp')}"
 
 
-def _minus_rule(run: StudyRun, name: str) -> float | None:
-    own, rule = run.tested(name), run.rule(name)
+def _minus_rule(run: StudyRun, name: str, yardstick: str) -> float | None:
+    own, rule = run.tested(name), run.rule(name, yardstick)
     return None if own is None or rule is None else own - rule
 
 
