@@ -94,7 +94,10 @@ def test_round_tests_draw_a_curve_and_leave_training_as_it_was(tmp_path):
 
     # The yardsticks on the curve's own seeds: each round pairs with the rule.
     assert set(curve["yardsticks"]) == {
-        "full_throttle", "gap_acceptance", "committed_gap_acceptance", "oracle"
+        "full_throttle",
+        "gap_acceptance",
+        "committed_gap_acceptance",
+        "oracle",
     }
     assert curve["yardsticks_wall_time_s"] > 0
     settings = validate(compose_config(tmp_path / "tested", overrides))

@@ -131,8 +131,9 @@ LEGEND = (
     "`agent.learning_starts`). The rule is the gap-acceptance driver on the same "
     "test episodes, the committed rule the same driver told the distance to the stop "
     "line (– where a run predates it as a yardstick: `python -m frl.evaluate RUN_DIR "
-    "--policy NAME` adds it); the paired difference is taken seed by seed. Precision is the one the runs trained in; commit is the "
-    "code's (`versions.git_commit` of `results.json`)."
+    "--policy NAME` adds it); the paired difference is taken seed by seed. Precision is "
+    "the one the runs trained in; commit is the code's (`versions.git_commit` of "
+    "`results.json`)."
 )
 
 
