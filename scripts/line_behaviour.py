@@ -5,9 +5,9 @@
 Drives the run's model, the plain gap-acceptance rule and the committed rule on the run's
 first ``N`` test episodes per task (its own test seeds) and, for each, counts:
 
-- **waited inside**: episodes where the car braked with its nose past the stop line
-  (action < 0 at a negative distance to the line, before it left the junction's
-  first 15 m) and how many of those collided, against the collisions of the others;
+- **braked past the line**: episodes where the car braked with its nose past the stop
+  line (action < 0 at a negative distance to the line, within the junction's first
+  15 m), and how many of those collided, against the collisions of the others;
 - **speed at the line**: the mean speed when the car crossed the line (m/s).
 
 For a model that observes its route (``env.route_observation=true``) it then asks, on
@@ -35,11 +35,11 @@ from frl.federation.plan import evaluation_seeds
 from frl.policies import install_guide, make_yardstick
 
 JUNCTION_DEPTH_M = 15.0
-"""Braking counts as waiting inside while the car is past the line by less than this."""
+"""Braking counts as braking past the line while the car is past it by less than this."""
 
 
 def drive(env: IntersectionEnv, policy, seeds: list[int]) -> dict[str, float]:  # type: ignore[no-untyped-def]
-    """Drive ``seeds`` and count waits inside the junction and their collisions."""
+    """Drive ``seeds`` and count brakes past the line and the collisions after them."""
     inside = inside_collisions = other_collisions = 0
     line_speeds = []
     for seed in seeds:
@@ -61,8 +61,8 @@ def drive(env: IntersectionEnv, policy, seeds: list[int]) -> dict[str, float]:  
         other_collisions += (not waited) and info["collision"]
     return {
         "episodes": len(seeds),
-        "waited_inside": inside,
-        "collisions_after_waiting_inside": inside_collisions,
+        "braked_past_line": inside,
+        "collisions_after_braking_past_line": inside_collisions,
         "other_collisions": other_collisions,
         "speed_at_line": float(np.mean(line_speeds)) if line_speeds else float("nan"),
     }
@@ -119,9 +119,9 @@ def main() -> None:
             for name, policy in drivers.items():
                 counts = drive(env, policy, seeds)
                 print(
-                    f"{task:<9} {name:<15} waited inside {counts['waited_inside']:>3}/"
+                    f"{task:<9} {name:<15} braked past the line {counts['braked_past_line']:>3}/"
                     f"{counts['episodes']} (collided after it "
-                    f"{counts['collisions_after_waiting_inside']}, other collisions "
+                    f"{counts['collisions_after_braking_past_line']}, other collisions "
                     f"{counts['other_collisions']}), "
                     f"speed at the line {counts['speed_at_line']:.2f} m/s"
                 )
