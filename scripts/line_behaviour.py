@@ -12,8 +12,9 @@ first ``N`` test episodes per task (its own test seeds) and, for each, counts:
 
 For a model that observes its route (``env.route_observation=true``) it then asks, on
 every state it visited within 10 m of the line, what the networks make of the distance:
-the actor's action and the critic's Q(s, brake) - Q(s, go) with the distance set to 5 m
-before the line against 2 m past it, the grid unchanged. A network that does not read
+the actor's action, the critic's Q(s, brake) - Q(s, go) and, under a collision budget, the
+cost critic's Q_c(s, brake) - Q_c(s, go) with the distance set to 5 m before the line
+against 2 m past it, the grid unchanged. A network that does not read
 the line answers the same for both.
 """
 
@@ -94,6 +95,11 @@ def line_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[st
             go = agent.critic(obs, torch.ones(len(x), 1))
         answers[f"action_{name}"] = float(actions.mean())
         answers[f"brake_minus_go_{name}"] = float((brake - go).mean())
+        if agent.networks.cost_critic is not None:  # the collisions to come, Q_c
+            ones = np.ones((len(moved), 1))
+            cost_brake = agent.critic_values(moved, -ones, cost=True)
+            cost_go = agent.critic_values(moved, ones, cost=True)
+            answers[f"cost_brake_minus_go_{name}"] = float((cost_brake - cost_go).mean())
     answers["states"] = len(states)
     return answers
 
@@ -133,6 +139,12 @@ def main() -> None:
                     f"{reading['action_past']:+.3f} (2 m past); Q(brake) - Q(go) "
                     f"{reading['brake_minus_go_before']:+.3f} vs "
                     f"{reading['brake_minus_go_past']:+.3f}"
+                    + (
+                        f"; Q_c(brake) - Q_c(go) {reading['cost_brake_minus_go_before']:+.4f} "
+                        f"vs {reading['cost_brake_minus_go_past']:+.4f}"
+                        if "cost_brake_minus_go_past" in reading
+                        else ""
+                    )
                 )
         finally:
             env.close()
