@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(prog="python -m frl.demo", description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", nargs="?", type=Path, help="a finished training run")
     parser.add_argument("--episodes", type=int, help="episodes per task (5; a run: its test's)")
-    parser.add_argument("--seed", type=seed_value, default=0, help="without RUN_DIR")
+    parser.add_argument("--seed", type=seed_value, help="without RUN_DIR (0)")
     parser.add_argument("--traffic", choices=list(TRAFFIC_PRESETS), help="without RUN_DIR")
     parser.add_argument("--gif", type=Path, help="the animation (outputs/demo.gif)")
     parser.add_argument(
@@ -47,9 +47,10 @@ def main(argv: list[str] | None = None) -> None:
         for flag, given in (("--collisions", args.collisions), ("--out", args.out)):
             if given:
                 parser.error(f"{flag} needs RUN_DIR")
-        rule_demo(args.episodes or 5, args.seed, args.traffic or "paper", args.gif)
+        seed = 0 if args.seed is None else args.seed
+        rule_demo(args.episodes or 5, seed, args.traffic or "paper", args.gif)
         return
-    for flag, given in (("--seed", args.seed != 0), ("--traffic", args.traffic)):
+    for flag, given in (("--seed", args.seed is not None), ("--traffic", args.traffic)):
         if given:
             parser.error(f"{flag} is the run's own with RUN_DIR")
     if args.out is not None and not args.collisions:

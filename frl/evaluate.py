@@ -45,7 +45,13 @@ from frl.episodes import (
 )
 from frl.federation.plan import evaluation_seeds, round_test_seeds
 from frl.federation.workers import WorkerPool, available_cores
-from frl.policies import YARDSTICK_LABELS, YARDSTICKS, install_guide, make_yardstick
+from frl.policies import (
+    DEFAULT_YARDSTICKS,
+    YARDSTICK_LABELS,
+    YARDSTICKS,
+    install_guide,
+    make_yardstick,
+)
 
 MODEL = "model"
 """The policy name of a run's trained model(s) in :func:`evaluate_policies`."""
@@ -208,12 +214,7 @@ def evaluate_policy(
     seed: int = 0,
     episodes: int = 100,
     tasks: Sequence[str] = TASKS,
-    yardsticks: Sequence[str] = (
-        "full_throttle",
-        "gap_acceptance",
-        "committed_gap_acceptance",
-        "oracle",
-    ),
+    yardsticks: Sequence[str] = DEFAULT_YARDSTICKS,
     on_reset: Callable[[], None] | None = None,
     progress: bool = False,
     verbose: bool = True,

@@ -43,7 +43,7 @@ from frl.federation.plan import (
 from frl.federation.round_tests import RoundTester
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores, threads_per_worker
-from frl.policies import YARDSTICKS, check_teacher
+from frl.policies import DEFAULT_YARDSTICKS, YARDSTICKS, check_teacher
 from frl.run_directory import read_saved_config
 
 
@@ -196,14 +196,7 @@ class TrainSchema:
     round_test_episodes: int = 0
     """Test episodes per task after every round, on seeds of their own (the per-round test
     curve, ``eval/round/...``); 0: none."""
-    yardsticks: list[str] = field(
-        default_factory=lambda: [
-            "full_throttle",
-            "gap_acceptance",
-            "committed_gap_acceptance",
-            "oracle",
-        ]
-    )
+    yardsticks: list[str] = field(default_factory=lambda: list(DEFAULT_YARDSTICKS))
     """Yardstick policies tested on the same seeds beside the model (frl.policies)."""
     progress: bool = True
     """Progress bar; always off in multirun."""

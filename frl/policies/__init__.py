@@ -39,6 +39,14 @@ YARDSTICKS: tuple[str, ...] = (
 )
 """The yardstick names, in the order tables list them."""
 
+DEFAULT_YARDSTICKS: tuple[str, ...] = (
+    "full_throttle",
+    "gap_acceptance",
+    "committed_gap_acceptance",
+    "oracle",
+)
+"""The yardsticks a test drives beside a model unless told otherwise (``yardsticks``)."""
+
 YARDSTICK_LABELS: dict[str, str] = {
     "full_throttle": "full throttle",
     "always_brake": "always brake",
@@ -98,6 +106,7 @@ def install_guide(agent: DDPG, env: EnvConfig) -> None:
 
 
 __all__ = [
+    "DEFAULT_YARDSTICKS",
     "TEACHERS",
     "TEACHERS_READING_THE_ROUTE",
     "YARDSTICKS",

@@ -111,7 +111,7 @@ class CommittedGapAcceptancePolicy(GapAcceptancePolicy):
     full throttle: it has committed. Before that it is :class:`GapAcceptancePolicy`.
     The plain rule's collisions come after it braked with its nose past the line, where
     a car in the near lane hits it while it waits for one in the far lane
-    (docs/studies.md, "The committed rule").
+    (docs/studies.md, "Where the car stands").
 
     The distance to the line comes from the observation's route (the env's
     ``route_observation``), or, where the observation is the paper's grid alone, from
