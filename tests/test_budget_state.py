@@ -19,13 +19,20 @@ def episodes(collisions: int, total: int) -> list[EpisodeRecord]:
 
 def test_a_round_counts_its_episodes_and_keeps_the_last_multiplier():
     multipliers = np.array([np.nan, 1.0, np.nan, 2.5, np.nan], np.float32)
-    assert round_record(episodes(3, 40), multipliers) == {
+    rates = np.array([np.nan, 0.1, np.nan, 0.08, np.nan], np.float32)
+    assert round_record(episodes(3, 40), multipliers, rates) == {
         "episodes": 40,
         "collisions": 3,
         "multiplier": 2.5,
+        "followed_rate": pytest.approx(0.08),
     }
     assert round_record(episodes(0, 5), np.full(5, np.nan))["multiplier"] is None
-    assert round_record([], None) == {"episodes": 0, "collisions": 0, "multiplier": None}
+    assert round_record([], None) == {
+        "episodes": 0,
+        "collisions": 0,
+        "multiplier": None,
+        "followed_rate": None,
+    }
 
 
 def test_a_kept_budget_with_a_settled_multiplier():
@@ -64,3 +71,20 @@ def test_one_round_cannot_say_whether_the_multiplier_settled():
         budget_end_state([{"episodes": 0, "collisions": 0, "multiplier": None}], 0.05)["kept"]
         is None
     )
+
+
+def test_a_budget_on_the_noise_free_episodes_is_kept_on_their_rate():
+    rounds = [
+        {"episodes": 200, "collisions": 30, "multiplier": 3.0, "followed_rate": 0.06},
+        {"episodes": 200, "collisions": 24, "multiplier": 3.2, "followed_rate": 0.02},
+    ]
+    noisy = budget_end_state(rounds, 0.02)
+    assert noisy["kept"] is False  # 12% over all training episodes
+    end = budget_end_state(rounds, 0.02, noise_free=True)
+    assert end["kept"] is True and end["followed_collision_rate"] == 0.02
+    assert end["last_round_collision_rate"] == pytest.approx(0.12)
+    (line,) = budget_lines({"client0_left": end})
+    assert line.startswith("client0_left: noise-free collisions 2.0% (the multiplier's window")
+    assert "all training episodes of its last round 12.0%" in line and "(kept," in line
+    before = [{"episodes": 200, "collisions": 4, "multiplier": 1.0}]  # a run from before
+    assert budget_end_state(before, 0.02, noise_free=True)["kept"] is None

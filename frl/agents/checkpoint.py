@@ -85,11 +85,7 @@ def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
         optimizers["cost_critic"] = agent.cost_critic_optimizer.state_dict()
     budget = None
     if agent.lagrangian is not None:
-        budget = {
-            "multiplier": agent.lagrangian.state_dict(),
-            "episode_cost": agent.episode_cost,
-            "episode_steps": agent.episode_steps,
-        }
+        budget = {"multiplier": agent.lagrangian.state_dict(), **agent.budget_episodes.state_dict()}
     return {
         "config": agent.config.to_dict(),
         "seed": agent.seed,
@@ -138,8 +134,7 @@ def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:
             agent.cost_critic_optimizer.load_state_dict(data["optimizers"]["cost_critic"])
             budget = data["collision_budget"]
             agent.lagrangian.load_state_dict(budget["multiplier"])
-            agent.episode_cost = float(budget["episode_cost"])
-            agent.episode_steps = int(budget["episode_steps"])
+            agent.budget_episodes.load_state_dict(budget)
         explorer = agent.explorer
         explorer.noise.load_state_dict(data["noise"])
         agent.writer.pending.load_state_dict(data.get("n_step", {}))

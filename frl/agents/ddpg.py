@@ -22,6 +22,7 @@ from torch import Tensor
 
 from frl.agents import checkpoint
 from frl.agents.acting import ActionScale, actor_action
+from frl.agents.budget_episodes import BudgetEpisodes
 from frl.agents.config import DDPGConfig
 from frl.agents.explorer import Explorer
 from frl.agents.functional import (
@@ -131,8 +132,10 @@ class DDPG:
             else None
         )
         """The collision budget's multiplier (:mod:`frl.agents.lagrange`); None without."""
-        self.episode_cost, self.episode_steps = 0.0, 0
-        """The running training episode's collisions and steps (what the budget counts)."""
+        self.budget_episodes = (
+            BudgetEpisodes(cfg.budget_noise_free_every) if self.lagrangian is not None else None
+        )
+        """Which training episodes the budget counts, and the running one's collisions."""
         rng = np.random.default_rng
         self.explorer = Explorer(cfg, self.action_dim, rng(noise_seq), rng(warmup_seq))
         # Compact storage whenever the observation is large, even for a dense network.
@@ -176,7 +179,8 @@ class DDPG:
             self.last_policy_action = np.full(self.action_dim, np.nan)
             return self.scale.from_unit(self.explorer.warmup_action())
         action = self.last_policy_action = self._policy_action(self.layout.flat(obs))
-        return self.scale.from_unit(self.explorer.noisy(action) if explore else action)
+        noisy = explore and not (self.budget_episodes and self.budget_episodes.noise_free)
+        return self.scale.from_unit(self.explorer.noisy(action) if noisy else action)
 
     def predict(
         self, observation: Any, state: Any = None, episode_start: Any = None,
@@ -221,10 +225,12 @@ class DDPG:
     def episode_start(self) -> None:
         """Call after every ``env.reset()``: the previous episode's pending n-step steps,
         cut off by a time limit, bootstrap from its last state, and count for the collision
-        budget; the noise restarts."""
+        budget; the noise restarts (the budget may have this episode driven without it)."""
         self.writer.end_episode()
         self._end_training_episode()
         self.explorer.episode_start()
+        if self.budget_episodes is not None:
+            self.budget_episodes.begin(self.explorer.in_warmup(self.num_env_steps))
 
     def observe(
         self, obs: Any, action: Any, reward: float, next_obs: Any, terminated: bool,
@@ -236,19 +242,20 @@ class DDPG:
         counts and its cost critic learns; other agents ignore it."""
         flat, next_flat = self.layout.flat(obs), self.layout.flat(next_obs)
         unit = self.scale.to_unit(action)
-        cost = float(cost) if self.lagrangian is not None else 0.0
+        cost = float(cost) if self.budget_episodes is not None else 0.0
         self.writer.write(flat, unit, float(reward), next_flat, bool(terminated), cost)
         self.num_env_steps += 1
-        self.episode_cost += cost
-        self.episode_steps += 1
+        if self.budget_episodes is not None:
+            self.budget_episodes.step(cost)
         if terminated:
             self._end_training_episode()
 
     def _end_training_episode(self) -> None:
-        """The running episode ended: the multiplier follows its collisions."""
-        if self.episode_steps and self.lagrangian is not None:
-            self.lagrangian.episode_end(self.episode_cost)
-        self.episode_cost, self.episode_steps = 0.0, 0
+        """The running episode ended: the multiplier follows its collisions, if counted."""
+        if self.budget_episodes is not None and self.lagrangian is not None:
+            collisions = self.budget_episodes.finish()
+            if collisions is not None:
+                self.lagrangian.episode_end(collisions)
 
     # ---------------------------------------------------------------- learning
     def update(self) -> dict[str, float]:
@@ -267,7 +274,8 @@ class DDPG:
         losses = {name: value.item() for name, value in stats.items()}
         if self.lagrangian is not None:
             losses["lagrange_multiplier"] = self.lagrangian.multiplier
-            losses["collision_rate"] = self.lagrangian.collision_rate
+            if self.lagrangian.recent:  # no rate before the first counted episode
+                losses["collision_rate"] = self.lagrangian.collision_rate
         return losses
 
     def _train_step(self, batch: Batch) -> dict[str, Tensor]:

@@ -409,7 +409,11 @@ def _count_episodes(state: RunState, updates: list[LocalUpdate]) -> None:
         )
         state.arrivals[name] = state.arrivals.get(name, 0) + sum(e.arrived for e in update.episodes)
         state.budget_rounds.setdefault(name, []).append(
-            round_record(update.episodes, update.losses.get("lagrange_multiplier"))
+            round_record(
+                update.episodes,
+                update.losses.get("lagrange_multiplier"),
+                update.losses.get("collision_rate"),
+            )
         )
         if update.episodes:
             state.last_returns[name] = update.episodes[-1].episode_return
