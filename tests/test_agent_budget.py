@@ -217,13 +217,13 @@ def test_an_agent_drives_every_kth_episode_without_noise_and_counts_those_alone(
         agent.observe(obs, action, reward, next_obs, terminated, info["cost"])
         agent.update()
     assert policy_driven == [False] * 100 + [i % 3 == 2 for i in range(60)]
-    assert len(agent.lagrangian.recent) == 20
+    assert len(agent.constraint.lagrangian.recent) == 20
 
 
 # -------------------------------------------------------------------- the agent
 def test_without_a_budget_the_agent_has_no_cost_critic_and_ignores_costs() -> None:
     agent = DDPG(ONE, ONE, DDPGConfig(hidden_sizes=(8,)), seed=0)
-    assert agent.lagrangian is None and agent.cost_critic_optimizer is None
+    assert agent.constraint is None
     assert not any(key.startswith("cost_critic") for key in agent.federated_state())
     agent.observe(np.ones(1), np.ones(1), 1.0, np.ones(1), True, cost=1.0)
     assert agent.writer.pending.flush() == []  # terminated: stored, cost not kept
@@ -239,7 +239,7 @@ def test_a_budget_that_never_prices_a_crash_trains_exactly_as_no_budget(cost_cri
     budgeted, other_env = pendulum_agent(collision_budget=0.1, cost_critic=cost_critic)
     plain.learn(env, 300)
     budgeted.learn(other_env, 300)
-    assert budgeted.lagrangian.multiplier == 0.0
+    assert budgeted.constraint.lagrangian.multiplier == 0.0
     state, other = plain.federated_state(), budgeted.federated_state()
     extra = set(other) - set(state)
     assert extra and all(key.startswith("cost_critic") for key in extra)
@@ -272,7 +272,7 @@ def test_a_budget_is_met_on_a_small_problem_that_the_return_alone_crashes(
     assert agent.predict(np.ones(1, np.float32))[0][0] < 0.5  # the policy itself: none
     # A crash has its price; the separate critic's, at this seed, above the speed it buys
     # (the head's Q_c is steeper in the action, so a smaller multiplier holds the budget).
-    assert agent.lagrangian.multiplier > (1.0 if cost_critic == "separate" else 0.1)
+    assert agent.constraint.lagrangian.multiplier > (1.0 if cost_critic == "separate" else 0.1)
     # The cost critic learned that going fast crashes and going slow does not.
     fast, slow = agent.critic_values(np.ones((2, 1)), np.array([[1.0], [-1.0]]), cost=True)
     assert fast > 0.5 > 0.2 > slow
@@ -295,12 +295,12 @@ def test_checkpoints_hold_the_cost_critic_and_the_multiplier(
 ) -> None:
     agent = dash_agent(0.1, seed=3, cost_critic=cost_critic)
     train_dash(agent, 300)
-    agent.budget_episodes.step(1.0)  # an episode running at the save, with a collision
+    agent.constraint.episodes.step(1.0)  # an episode running at the save, with a collision
     agent.save(tmp_path / "a.pt", include_buffer=True)
     restored = dash_agent(0.1, seed=99, cost_critic=cost_critic)
     restored.restore(tmp_path / "a.pt")
-    assert restored.lagrangian.state_dict() == agent.lagrangian.state_dict()
-    assert restored.budget_episodes.state_dict() == agent.budget_episodes.state_dict()
+    assert restored.constraint.lagrangian.state_dict() == agent.constraint.lagrangian.state_dict()
+    assert restored.constraint.episodes.state_dict() == agent.constraint.episodes.state_dict()
     np.testing.assert_array_equal(restored.buffer.costs, agent.buffer.costs)
     agent.episode_start()
     restored.episode_start()
@@ -309,7 +309,7 @@ def test_checkpoints_hold_the_cost_critic_and_the_multiplier(
     assert any(key.startswith("cost_critic_target.") for key in state)
     for key, tensor in state.items():
         assert torch.equal(tensor, other[key]), key
-    assert restored.lagrangian.multiplier == agent.lagrangian.multiplier
+    assert restored.constraint.lagrangian.multiplier == agent.constraint.lagrangian.multiplier
 
 
 def test_a_cost_head_is_a_small_mlp_on_the_critics_last_hidden_layer() -> None:
@@ -354,7 +354,7 @@ def test_a_fedavg_round_averages_the_cost_critic_and_keeps_each_multiplier() -> 
         updates.append(client.train(60))
         client.close()
     for client in clients:  # an episode each, with and without a collision
-        client.agent.lagrangian.episode_end(float(client.spec.index))
+        client.agent.constraint.lagrangian.episode_end(float(client.spec.index))
     uploads = [update.parameters for update in updates]
     key = "cost_critic.layers.0.weight"
     assert key in uploads[0] and not torch.equal(uploads[0][key], uploads[1][key])
@@ -363,6 +363,6 @@ def test_a_fedavg_round_averages_the_cost_critic_and_keeps_each_multiplier() -> 
         client.set_parameters(global_model)
         assert torch.equal(client.agent.federated_state()[key], global_model[key])
     torch.testing.assert_close(global_model[key], (uploads[0][key] + uploads[1][key]) / 2)
-    multipliers = [client.agent.lagrangian.multiplier for client in clients]
+    multipliers = [client.agent.constraint.lagrangian.multiplier for client in clients]
     assert multipliers[0] != multipliers[1]  # the multiplier stays with its vehicle
     assert np.isfinite(updates[0].losses["cost_q_mean"]).any()

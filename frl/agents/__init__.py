@@ -2,7 +2,8 @@
 
 from frl.agents.checkpoint import CheckpointError
 from frl.agents.config import DDPGConfig
-from frl.agents.ddpg import DDPG, is_target_key
+from frl.agents.ddpg import DDPG
+from frl.agents.federated import is_target_key
 from frl.agents.functional import discounted_returns, hard_update, soft_update, td_target
 from frl.agents.learn import training_step
 from frl.agents.networks import Actor, ActorCritic, Critic

@@ -10,7 +10,7 @@ pools the vehicles in NumPy, with nothing else in between (0.33 ms a forward pas
 training step, measured the same way). What is left is mostly reading the 1.9 MB of
 weights, which SUMO and the updates push out of the cache: the 512 x 512 layer takes
 31 us at batch 1 with its weights in cache and 112 us without. :class:`ActionScale`
-maps the actor's [-1, 1] to the action space.
+maps the actor's [-1, 1] to the action space; :func:`policy_actions` acts on a batch.
 
 In float32 the numbers are exactly :meth:`frl.agents.Actor.forward`'s on the same
 observation: the same layers and kernels on tensors of the same shapes. An agent whose
@@ -54,6 +54,15 @@ def actor_action(actor: Actor, flat_observation: np.ndarray, sparse: bool) -> np
         else:
             action = torch.tanh(preactivation)
         return action[0].to("cpu", torch.float64).numpy()
+
+
+def policy_actions(actor: Actor, flat_batch: np.ndarray, sparse: bool) -> np.ndarray:
+    """The actor's actions in [-1, 1] (float64 ``[batch, action_dim]``) on a batch of flat
+    observations, in float32 as acting on one."""
+    flat = torch.from_numpy(flat_batch).to(actor.layers[-1].weight.device)
+    with torch.no_grad():
+        actions = actor(SparseRows.from_dense(flat) if sparse else flat)
+    return actions.double().cpu().numpy()
 
 
 def _actor_input(
@@ -121,3 +130,57 @@ class ActionScale:
         env_action = self.low + (action + 1.0) * 0.5 * (self.high - self.low)
         low, high = self.low.astype(np.float32), self.high.astype(np.float32)
         return np.clip(env_action.astype(np.float32), low, high).reshape(self.shape)
+
+
+class Acting:
+    """An agent's actions: exploring (the explorer's, or the policy's alone in an episode
+    a collision budget drives without noise) and deterministic, on one observation or a
+    batch, for :class:`frl.agents.DDPG`."""
+
+    actor: Actor
+    explorer: Any
+    constraint: Any
+    layout: Any
+    scale: ActionScale
+    obs_dim: int
+    obs_shape: tuple[int, ...]
+    action_dim: int
+    sparse: bool
+    num_env_steps: int
+    last_policy_action: np.ndarray
+
+    def _policy_action(self, flat: Any) -> np.ndarray:
+        """The deterministic policy's normalised action on one flat observation."""
+        flat = np.asarray(flat, dtype=np.float32).reshape(-1)
+        if flat.size != self.obs_dim:
+            raise ValueError(f"expected an observation of shape {self.obs_shape}")
+        return actor_action(self.actor, flat, self.sparse)
+
+    def act(self, obs: Any, explore: bool = True) -> np.ndarray:
+        """Action for one observation, float32 within the bounds: with ``explore`` the
+        explorer's (held uniform warm-up actions, then the policy's plus noise), without
+        it the deterministic policy's."""
+        if explore and self.explorer.in_warmup(self.num_env_steps):
+            self.last_policy_action = np.full(self.action_dim, np.nan)
+            return self.scale.from_unit(self.explorer.warmup_action())
+        action = self.last_policy_action = self._policy_action(self.layout.flat(obs))
+        noisy = explore and not (self.constraint and self.constraint.noise_free)
+        return self.scale.from_unit(self.explorer.noisy(action) if noisy else action)
+
+    def predict(
+        self, observation: Any, state: Any = None, episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:  # fmt: skip
+        """``(action, None)`` for one observation or a batch (Stable-Baselines3's
+        signature; no recurrent state). ``deterministic=False`` adds what the exploration
+        noise would add next, drawn from a copy: ``predict`` never changes the agent. A
+        ``ValueError`` names an observation of neither the space's shape nor a batch's."""
+        batch, batched = self.layout.flat_batch(observation)
+        if batched:
+            actions = policy_actions(self.actor, batch, self.sparse)
+        else:
+            actions = self._policy_action(batch[0])[None]
+        if not deterministic:
+            actions = self.explorer.noisy_copies(actions)
+        env_actions = np.stack([self.scale.from_unit(action) for action in actions])
+        return (env_actions if batched else env_actions[0]), None

@@ -7,7 +7,7 @@ import os
 import types
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 import torch
@@ -81,11 +81,10 @@ def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
         "actor": agent.actor_optimizer.state_dict(),
         "critic": agent.critic_optimizer.state_dict(),
     }
-    if agent.cost_critic_optimizer is not None:
-        optimizers["cost_critic"] = agent.cost_critic_optimizer.state_dict()
     budget = None
-    if agent.lagrangian is not None:
-        budget = {"multiplier": agent.lagrangian.state_dict(), **agent.budget_episodes.state_dict()}
+    if agent.constraint is not None:
+        optimizers["cost_critic"] = agent.constraint.optimizer.state_dict()
+        budget = agent.constraint.state_dict()
     return {
         "config": agent.config.to_dict(),
         "seed": agent.seed,
@@ -130,11 +129,9 @@ def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:
         agent.networks.load_state_dict(networks)
         agent.actor_optimizer.load_state_dict(data["optimizers"]["actor"])
         agent.critic_optimizer.load_state_dict(data["optimizers"]["critic"])
-        if agent.cost_critic_optimizer is not None:
-            agent.cost_critic_optimizer.load_state_dict(data["optimizers"]["cost_critic"])
-            budget = data["collision_budget"]
-            agent.lagrangian.load_state_dict(budget["multiplier"])
-            agent.budget_episodes.load_state_dict(budget)
+        if agent.constraint is not None:
+            agent.constraint.optimizer.load_state_dict(data["optimizers"]["cost_critic"])
+            agent.constraint.load_state_dict(data["collision_budget"])
         explorer = agent.explorer
         explorer.noise.load_state_dict(data["noise"])
         agent.writer.pending.load_state_dict(data.get("n_step", {}))
@@ -236,3 +233,36 @@ class class_only:
                 "agent.restore(path)"
             )
         return types.MethodType(self.method, owner)
+
+
+FilePath = str | os.PathLike[str]
+
+
+class Checkpointing:
+    """An agent's files: :meth:`save`, :meth:`restore`, ``from_checkpoint`` and ``load``
+    (Stable-Baselines3's names), for :class:`frl.agents.DDPG`."""
+
+    def save(self, path: FilePath, include_buffer: bool = False) -> None:
+        """Write networks, optimizers, noise, counters and generators (and the buffer),
+        atomically; the file loads with ``torch.load(weights_only=True)``."""
+        write_checkpoint(agent_payload(self, include_buffer), path)
+
+    def restore(self, path: FilePath) -> None:
+        """Load a :meth:`save` file into this agent (same config and spaces): exact resume,
+        with an empty buffer if none was saved. Raises ``CheckpointError``, changing
+        nothing, for an unreadable or foreign file or one of another config or shapes."""
+        restore_agent(self, path)
+
+    @classmethod
+    def from_checkpoint(  # a new agent with the file's config and seed, restored
+        cls, path: FilePath, observation_space: spaces.Box | spaces.Dict | None = None,
+        action_space: spaces.Box | None = None, device: str | torch.device = "cpu",
+    ) -> Self:  # fmt: skip
+        """Spaces left out are rebuilt from the file (the observation bounds unbounded)."""
+        return load_agent(cls, path, observation_space, action_space, device)
+
+    @class_only
+    def load(cls, path: FilePath, device: str | torch.device = "cpu") -> Self:
+        """A new agent from a :meth:`save` file or a run's ``models/*.pt``, as in SB3.
+        Raises ``CheckpointError`` for an unreadable, foreign or malformed file."""
+        return cls.from_checkpoint(path, device=device)

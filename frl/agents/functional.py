@@ -1,5 +1,6 @@
-"""Pure maths of DDPG: TD target, the actor's inverting-gradients surrogate, target-network
-updates, FedProx's pull, discounted returns, and the quantile critic's loss and CVaR."""
+"""Pure maths of DDPG: TD target, the critic's loss, the actor's inverting-gradients
+surrogate, target-network updates, FedProx's pull, discounted returns, and the quantile
+critic's loss and CVaR."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 
@@ -19,6 +21,23 @@ def td_target(rewards: Tensor, terminated: Tensor, next_q: Tensor, gamma: float 
     ``gamma`` a tensor of ``gamma**k``, k the steps each one spans.
     """
     return rewards + gamma * (1.0 - terminated) * next_q
+
+
+def critic_loss(
+    q: Tensor, rewards: Tensor, terminated: Tensor, next_q: Tensor, discount: float | Tensor,
+    quantile: bool,
+) -> tuple[Tensor, Tensor]:  # fmt: skip
+    """The reward critic's loss and its batch's mean |TD error|: the squared error to the
+    n-step TD target (DDPG), or for a quantile critic (``quantile``, q and next_q of
+    shape (batch, quantiles)) the quantile Huber loss to the target's quantiles, its TD
+    error taken between the quantiles' means."""
+    if quantile:
+        per_sample = discount.unsqueeze(-1) if isinstance(discount, Tensor) else discount
+        target = td_target(rewards.unsqueeze(-1), terminated.unsqueeze(-1), next_q, per_sample)
+        error = (q.detach().mean(-1) - target.mean(-1)).abs().mean()
+        return quantile_huber_loss(q, target), error
+    target = td_target(rewards, terminated, next_q, discount)
+    return F.mse_loss(q, target), (q.detach() - target).abs().mean()
 
 
 @torch.no_grad()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import itertools
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -278,6 +279,27 @@ def build_cost_head(
     head = head.to_empty(device="cpu")
     init_mlp_(head.layers, generator)
     return head.to(device)
+
+
+def build_actor_critic(
+    config: DDPGConfig, obs_dim: int, action_dim: int, layout: ObservationLayout,
+    generator: torch.Generator, device: torch.device,
+) -> ActorCritic:  # fmt: skip
+    """The agent's networks as ``config`` describes them, initialised from ``generator``
+    in a fixed order: actor, critic (``quantiles`` outputs for a quantile critic), then a
+    collision budget's cost critic (a head or a separate critic), built last so that the
+    actor's and critic's initial weights do not depend on it."""
+
+    def network(kind: type[Actor] | type[Critic], outputs: int = 1) -> Any:
+        return build_network(kind, obs_dim, action_dim, config, layout, generator, device, outputs)
+
+    actor = network(Actor)
+    critic = network(Critic, config.quantiles if config.critic == "quantile" else 1)
+    cost_critic: Critic | CostHead | None = None
+    if config.costed:
+        separate = config.cost_critic == "separate"
+        cost_critic = network(Critic) if separate else build_cost_head(config, generator, device)
+    return ActorCritic(actor, critic, cost_critic)
 
 
 def make_adam(params: list[nn.Parameter], lr: float, device: torch.device) -> torch.optim.Adam:

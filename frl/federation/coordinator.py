@@ -33,7 +33,7 @@ from torch import Tensor
 
 from frl import run_directory as rundir
 from frl.agents.checkpoint import read_checkpoint, write_checkpoint
-from frl.agents.ddpg import is_target_key
+from frl.agents.federated import is_target_key
 from frl.federation.budget_state import round_record
 from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool

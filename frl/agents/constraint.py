@@ -1,0 +1,158 @@
+"""A collision budget, one part of the agent (``DDPGConfig.collision_budget``).
+
+Safe RL's constraint on DDPG (Stooke, Achiam and Abbeel 2020; OmniSafe's DDPG-Lag): a
+cost critic learns Q_c, the discounted collisions to come, and a Lagrange multiplier
+lambda prices it in the actor's objective, following the collision rate of the episodes
+the budget counts. The agent calls this part at five points:
+
+- acting: :meth:`CollisionConstraint.episode_begins`, :meth:`~CollisionConstraint.observe_cost`
+  and :meth:`~CollisionConstraint.episode_ends` (the count behind the multiplier), and
+  :attr:`~CollisionConstraint.noise_free` (whether the running episode is driven without
+  noise, :mod:`frl.agents.budget_episodes`);
+- learning: :meth:`~CollisionConstraint.learn` (the cost critic's own step on the batch)
+  and :meth:`~CollisionConstraint.price` (the actor's objective under the budget).
+
+The cost networks themselves live in :class:`~frl.agents.networks.ActorCritic` beside the
+others, so FedAvg, targets and checkpoints treat every network alike.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from frl.agents.budget_episodes import BudgetEpisodes
+from frl.agents.config import DDPGConfig
+from frl.agents.functional import td_target
+from frl.agents.lagrange import PIDLagrangian
+from frl.agents.networks import ActorCritic, CostHead, Critic, make_adam
+from frl.agents.replay_buffer import Batch
+from frl.agents.sparse_linear import SparseRows
+
+Descend = Callable[[torch.optim.Optimizer, Tensor], None]
+"""One optimizer step down a loss (the agent's, with FedProx's pull where anchored)."""
+
+
+class CollisionConstraint:
+    """The cost critic's optimizer, the PID multiplier and the episodes they count, for
+    the cost networks of ``networks`` (which must have them).
+
+    Args:
+        config: the agent's config, with ``collision_budget`` set.
+        networks: the agent's networks, a cost critic among them.
+        device: where the cost critic's optimizer state lives.
+        autocast: the agent's precision context for forward passes.
+    """
+
+    def __init__(
+        self,
+        config: DDPGConfig,
+        networks: ActorCritic,
+        device: torch.device,
+        autocast: Callable[[], Any],
+    ) -> None:
+        if networks.cost_critic is None or config.collision_budget is None:
+            raise ValueError("a collision constraint needs collision_budget and a cost critic")
+        self.networks = networks
+        self.autocast = autocast
+        self.optimizer = make_adam(
+            list(networks.cost_critic.parameters()), config.critic_lr, device
+        )
+        """The cost critic's Adam, at the reward critic's rate."""
+        self.lagrangian = PIDLagrangian(
+            config.collision_budget, config.lagrange_gains, config.lagrange_window
+        )
+        """The multiplier (:mod:`frl.agents.lagrange`)."""
+        self.episodes = BudgetEpisodes(config.budget_noise_free_every)
+        """Which training episodes the multiplier counts, and the running one's collisions."""
+
+    @property
+    def reads_critic_hidden(self) -> bool:
+        """Whether Q_c is a head on the reward critic's last hidden layer."""
+        return isinstance(self.networks.cost_critic, CostHead)
+
+    # ------------------------------------------------------------------ acting
+    @property
+    def noise_free(self) -> bool:
+        """Whether the running training episode is driven without exploration noise."""
+        return self.episodes.noise_free
+
+    def episode_begins(self, in_warmup: bool) -> None:
+        """A training episode begins (``in_warmup``: its first action is a warm-up one)."""
+        self.episodes.begin(in_warmup)
+
+    def observe_cost(self, cost: float) -> None:
+        """One step of the running training episode, with ``cost`` collisions."""
+        self.episodes.step(cost)
+
+    def episode_ends(self) -> None:
+        """The running training episode ended: the multiplier follows it, if counted."""
+        collisions = self.episodes.finish()
+        if collisions is not None:
+            self.lagrangian.episode_end(collisions)
+
+    def stats(self) -> dict[str, float]:
+        """The multiplier, and the rate it follows once an episode is counted."""
+        stats = {"lagrange_multiplier": self.lagrangian.multiplier}
+        if self.lagrangian.recent:
+            stats["collision_rate"] = self.lagrangian.collision_rate
+        return stats
+
+    # ---------------------------------------------------------------- learning
+    def values(
+        self, network: Critic | CostHead, obs: Tensor | SparseRows, action: Tensor,
+        hidden: Tensor | None,
+    ) -> Tensor:  # fmt: skip
+        """Q_c of ``network`` (online or target) at ``(obs, action)``: a separate cost
+        critic reads them, a cost head the reward critic's last hidden layer there."""
+        if isinstance(network, CostHead):
+            assert hidden is not None
+            return network(hidden)
+        return network(obs, action)
+
+    def learn(
+        self, batch: Batch, next_actions: Tensor, discount: float | Tensor,
+        critic_hidden: tuple[Tensor, Tensor], descend: Descend,
+    ) -> dict[str, Tensor]:  # fmt: skip
+        """The cost critic's step: squared error to the n-step TD target of the discounted
+        collisions to come, bootstrapped from its own target network. ``critic_hidden``:
+        the last hidden layers of the critic at the batch and of the target critic at the
+        next states, detached (what a cost head reads)."""
+        nets = self.networks
+        assert nets.cost_critic is not None and nets.cost_critic_target is not None
+        assert batch.costs is not None
+        hidden, next_hidden = critic_hidden
+        with self.autocast(), torch.no_grad():
+            next_cost = self.values(
+                nets.cost_critic_target, batch.next_obs, next_actions, next_hidden
+            )
+        with self.autocast():
+            cost_q = self.values(nets.cost_critic, batch.obs, batch.actions, hidden)
+        loss = F.mse_loss(cost_q, td_target(batch.costs, batch.terminated, next_cost, discount))
+        descend(self.optimizer, loss)
+        return {"cost_critic_loss": loss.detach(), "cost_q_mean": cost_q.detach().mean()}
+
+    def price(
+        self, value: Tensor, obs: Tensor | SparseRows, action: Tensor, hidden: Tensor | None
+    ) -> Tensor:
+        """The actor's objective under the budget: (value - lambda Q_c) / (1 + lambda), so
+        that its scale stays that of a return as lambda grows (Stooke et al. 2020)."""
+        assert self.networks.cost_critic is not None
+        multiplier = self.lagrangian.multiplier
+        with self.autocast():
+            cost = self.values(self.networks.cost_critic, obs, action, hidden)
+        return (value - multiplier * cost) / (1.0 + multiplier)
+
+    # ------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        """The multiplier and the running episode's count, as checkpoints keep them (the
+        optimizer's state is saved beside the agent's others)."""
+        return {"multiplier": self.lagrangian.state_dict(), **self.episodes.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.lagrangian.load_state_dict(state["multiplier"])
+        self.episodes.load_state_dict(state)
