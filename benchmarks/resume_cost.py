@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from frl.envs import EnvConfig, IntersectionEnv
-from frl.federation.drive import Drive, drive_path, read_drive, write_drive
+from frl.federation.vehicle_snapshot import Drive, snapshot_path, read_vehicle_snapshot, write_vehicle_snapshot
 from frl.policies import GapAcceptancePolicy
 
 
@@ -75,14 +75,14 @@ def main(argv: list[str] | None = None) -> int:
     expected = drive_steps_on(driven)
     driven.close()  # libsumo: one simulation per process
     with tempfile.TemporaryDirectory() as tmp:
-        path = drive_path(tmp, "vehicle")
+        path = snapshot_path(tmp, "vehicle")
         began = time.perf_counter()
-        write_drive(path, drive)
+        write_vehicle_snapshot(path, drive)
         write_s = time.perf_counter() - began
         size = path.stat().st_size
         began = time.perf_counter()
         restored = IntersectionEnv(config)
-        restored.restore(read_drive(path).snapshot)  # type: ignore[arg-type]
+        restored.restore(read_vehicle_snapshot(path).snapshot)  # type: ignore[arg-type]
         restore_s = time.perf_counter() - began
     after = drive_steps_on(restored)
     same = all(np.array_equal(a, b) for a, b in zip(expected, after, strict=True))

@@ -36,6 +36,7 @@ import numpy as np
 
 from frl.agents.learn import EPISODE_WINDOW
 from frl.fileio import write_bytes_atomic
+from frl.report.plots import pyplot
 from frl.report.runs import RunDataError, RunRecord, load_run
 from frl.run_directory import FIGURE_FILE
 from frl.train_config import ConfigError, complete_saved_config
@@ -305,16 +306,6 @@ def _nanmean(values: np.ndarray) -> np.ndarray:
 def _colors(count: int) -> list[Any]:
     palette = ["tab:green", "tab:blue", "tab:red", "tab:cyan", "tab:brown", "tab:pink"]
     return [palette[i % len(palette)] for i in range(count)]
-
-
-def pyplot() -> Any:
-    """matplotlib's pyplot on the Agg backend: files only, never a window."""
-    import matplotlib
-
-    matplotlib.use("Agg")  # files only; never opens a window
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -127,7 +127,7 @@ class RunState:
     """Seconds the round tests took, summed over rounds (inside ``wall_time_s``)."""
     budget_rounds: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
     """Each vehicle's rounds as the collision budget counts them: episodes, collisions and
-    the multiplier at the round's end (:func:`frl.federation.budget_state.round_record`)."""
+    the multiplier at the round's end (:func:`frl.federation.collision_budget.round_record`)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -19,10 +19,9 @@ from omegaconf import DictConfig, OmegaConf
 from frl import run_directory as rundir
 from frl.agents.config import DDPGConfig
 from frl.agents.precision import precision_report
-from frl.budget import updates_due
 from frl.envs.config import traffic_name
-from frl.federation.budget_state import budget_end_state, budget_lines
 from frl.federation.client_pool import ProcessClientPool
+from frl.federation.collision_budget import budget_end_state, budget_lines
 from frl.federation.coordinator import run_logged
 from frl.federation.plan import FederationPlan
 from frl.federation.strategies import ServerStrategy
@@ -37,6 +36,7 @@ from frl.provenance import versions
 from frl.run_directory import RoundHook, RunState
 from frl.run_opening import config_value, open_run
 from frl.train_config import TrainSettings
+from frl.update_count import updates_due
 
 log = logging.getLogger("frl.train")
 
@@ -48,7 +48,7 @@ FINAL_REWARD_FRACTION = 0.1
 """``final_step_reward`` averages ``train/step_reward`` over this last share of the run."""
 
 
-def budget_line(plan: FederationPlan, agent: DDPGConfig) -> str:
+def schedule_line(plan: FederationPlan, agent: DDPGConfig) -> str:
     """What a run trains, in one line: its vehicles, each one's environment steps and
     updates, and its rounds of ``interval`` updates, the first one's warm-up stated. Updates
     are counted as due (every ``train_freq``-th step from ``learning_starts`` on); the first
@@ -107,7 +107,7 @@ def train(
         settings.device,
         "yes" if precision["native_bf16"] else "no",
     )
-    log.info("training: %s", budget_line(settings.plan, settings.agent))
+    log.info("training: %s", schedule_line(settings.plan, settings.agent))
     if settings.agent.collision_budget is not None:
         every = settings.agent.budget_noise_free_every
         counted = (
@@ -234,7 +234,7 @@ def round_tests_section(settings: TrainSettings, state: RunState) -> dict[str, A
 def collision_budget_state(settings: TrainSettings, state: RunState) -> dict[str, Any] | None:
     """Each vehicle's collision budget at the end of training (None without a budget):
     its last round's training collision rate, whether that kept the budget, and whether
-    its multiplier levelled off (:func:`frl.federation.budget_state.budget_end_state`)."""
+    its multiplier levelled off (:func:`frl.federation.collision_budget.budget_end_state`)."""
     budget = settings.agent.collision_budget
     if budget is None:
         return None

@@ -5,7 +5,7 @@ import dataclasses
 import pytest
 
 from frl.envs.config import EnvConfig, GridConfig, RewardConfig, ScenarioConfig
-from frl.envs.reward import REWARD_TERMS, RewardSignals, reward_terms
+from frl.envs.reward import COST_TERMS, REWARD_TERMS, RewardSignals, cost_terms, reward_terms
 
 
 def signals(**kwargs):
@@ -43,6 +43,12 @@ def test_terms_are_the_weighted_indicators():
 def test_collision_term():
     terms = reward_terms(signals(collision=True), RewardConfig())
     assert terms["collision"] == -10.0
+
+
+def test_the_cost_is_the_collision_unweighted_whatever_the_reward():
+    crash = cost_terms(signals(collision=True, arrived=True))
+    assert set(crash) == set(COST_TERMS) and crash == {"collision": 1.0}
+    assert cost_terms(signals(moving=True, others_braking=True)) == {"collision": 0.0}
 
 
 def test_reference_reward_by_name():

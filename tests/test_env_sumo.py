@@ -95,6 +95,7 @@ def test_full_throttle_collides_in_some_episodes(make_env):
                 collisions += 1
                 assert terminated and not info["arrived"]
                 assert info["reward_terms"]["collision"] == -10.0
+                assert info["cost_terms"] == {"collision": 1.0} and info["cost"] == 1.0
         env.close()
     assert 0 < collisions < 12
 
@@ -107,6 +108,7 @@ def test_arrival_pays_mu_and_terms_sum_to_reward(make_env):
         for _, reward, _, _, info in steps:
             assert set(info["reward_terms"]) == set(REWARD_TERMS)
             assert sum(info["reward_terms"].values()) == pytest.approx(reward)
+            assert info["cost"] == sum(info["cost_terms"].values()) == 0.0
         *_, (_, reward, terminated, _, info) = steps
         if info["arrived"]:
             arrived += 1

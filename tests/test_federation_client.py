@@ -11,8 +11,8 @@ from train_helpers import tiny_spec
 
 from frl.agents import is_target_key
 from frl.federation import ProcessClientPool, VehicleClient, fedavg
-from frl.frames import decode_frame, encode_frame
-from frl.vehicle_host import PARAMETERS_PREFIX
+from frl.federation.frames import decode_frame, encode_frame
+from frl.federation.vehicle_host import PARAMETERS_PREFIX
 
 # One xdist worker runs this module: its tests share one vehicle (a module fixture).
 pytestmark = pytest.mark.xdist_group("client")

@@ -15,7 +15,7 @@ from frl.federation.codec import (
     update_from_parts,
     update_to_parts,
 )
-from frl.frames import decode_frame, encode_frame
+from frl.federation.frames import decode_frame, encode_frame
 
 
 def test_a_client_spec_survives_json():

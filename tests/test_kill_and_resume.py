@@ -18,7 +18,7 @@ import pytest
 from train_helpers import TINY_OVERRIDES, compose_config
 
 from frl import run_directory as rundir
-from frl.federation.drive import DRIVE_SUFFIX
+from frl.federation.vehicle_snapshot import SNAPSHOT_SUFFIX
 from frl.train import train
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,7 +89,7 @@ def test_killed_at_any_moment_the_resumed_run_is_the_run_never_killed(never_kill
     # vehicles saved them): the episode it was running at the commit is dropped, the run
     # names that vehicle alone, and it is not the run never killed.
     without = tmp_path / "without_drives"
-    for drive in (without / "checkpoints").glob(f"round_*/client0_left{DRIVE_SUFFIX}"):
+    for drive in (without / "checkpoints").glob(f"round_*/client0_left{SNAPSHOT_SUFFIX}"):
         drive.unlink()
     done = _session(without, None, resume=True)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -30,7 +30,7 @@ def test_the_default_config_is_fedavg_on_the_three_tasks():
 
 
 def test_the_main_command_trains_eight_steps_per_update_and_the_editions_one():
-    from frl.training import budget_line
+    from frl.training import schedule_line
 
     def full(overrides: list[str]):  # as python -m frl.train composes it, no tiny budget
         return validate(compose_config(None, overrides, tiny=False))
@@ -40,7 +40,7 @@ def test_the_main_command_trains_eight_steps_per_update_and_the_editions_one():
     assert settings.agent.train_freq == 8
     # The command frl is known by is the default run: interval counts updates.
     assert full(["federation=fedavg", "interval=2000"]) == settings
-    line = budget_line(settings.plan, settings.agent)
+    line = schedule_line(settings.plan, settings.agent)
     assert line.startswith(
         "fedavg, 3 vehicles (left, straight, right): 5 rounds of 2,000 updates per vehicle "
         "(16,000 environment steps; models averaged after each), 80,000 environment steps "
@@ -54,7 +54,7 @@ def test_the_main_command_trains_eight_steps_per_update_and_the_editions_one():
     # The default budget trains under a collision budget; the paper's, as the paper, not.
     assert (settings.agent.collision_budget, paper.agent.collision_budget) == (0.02, None)
     assert paper.agent == full(["agent.train_freq=1", "agent.collision_budget=null"]).agent
-    paper_line = budget_line(paper.plan, paper.agent)
+    paper_line = schedule_line(paper.plan, paper.agent)
     assert "5 rounds of 2,000 updates per vehicle (2,000 environment steps" in paper_line
     assert "10,000 environment steps and 9,001 updates per vehicle" in paper_line
     for preset in ("fig3", "fig4", "fig4-guided", "fig6", "quick", "study-learning"):
@@ -217,7 +217,7 @@ def test_the_run_says_what_it_trains_and_counts_the_updates_an_agent_takes(
 
     from frl.agents import DDPG, DDPGConfig
     from frl.federation.plan import FederationPlan
-    from frl.training import budget_line
+    from frl.training import schedule_line
 
     config = DDPGConfig(
         hidden_sizes=(8,), batch_size=1, buffer_size=100, n_step=1,
@@ -230,7 +230,7 @@ def test_the_run_says_what_it_trains_and_counts_the_updates_an_agent_takes(
         agent.update()
     round_steps = 20 - 20 % train_freq
     plan = FederationPlan(total_steps=60, interval=round_steps)
-    line = budget_line(plan, config)
+    line = schedule_line(plan, config)
     assert f"60 environment steps and {agent.num_updates} updates per vehicle" in line
     assert line.startswith(
         f"fedavg, 3 vehicles (left, straight, right): {plan.num_rounds} rounds of "
@@ -241,7 +241,7 @@ def test_the_run_says_what_it_trains_and_counts_the_updates_an_agent_takes(
         first.observe(np.zeros(2), np.zeros(2), 0.0, np.zeros(2), False)
         first.update()
     assert line.endswith(f"so the first round has {first.num_updates}")
-    fleet = budget_line(FederationPlan(total_steps=60, interval=20, vehicles_per_task=3), config)
+    fleet = schedule_line(FederationPlan(total_steps=60, interval=20, vehicles_per_task=3), config)
     assert fleet.startswith("fedavg, 9 vehicles (left, straight, right): ")
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from frl.envs.config import TASKS, EnvConfig, RewardConfig
 from frl.envs.observation import OccupancyGrid
-from frl.envs.reward import RewardSignals, reward_terms
+from frl.envs.reward import RewardSignals, cost_terms, reward_terms
 from frl.envs.scenario import Scenario, build_scenario
 from frl.envs.sumo_backend import BRAKE_LIGHT_BIT, EGO_ID, SumoSimulation, VehicleState
 
@@ -90,7 +90,8 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
     - Termination: the ego collides (it is in SUMO's colliding-vehicle list) or arrives.
       Truncation: ``max_episode_steps`` steps without either.
     - ``info``: ``task``, ``collision``, ``arrived``, ``travel_time_steps`` (steps taken
-      in this episode), ``reward_terms`` and ``ego_speed``.
+      in this episode), ``reward_terms``, ``ego_speed``, and ``cost_terms`` with their sum
+      ``cost`` (:data:`frl.envs.reward.COST_TERMS`, what a collision budget counts).
 
     One SUMO simulation runs across episodes: ``reset(seed=s)`` (re)starts it with
     SUMO seed ``s``; a plain ``reset()`` removes the old ego and inserts a new one into
@@ -214,7 +215,7 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
             raise RuntimeError("SUMO did not insert the ego vehicle")
         self._ego_speed = ego.speed
         observation = self._observation(self._grid(self._vehicles, ego))
-        return observation, self._info(collision=False, arrived=False, terms=None)
+        return observation, self._info(collision=False, arrived=False, terms=None, costs=None)
 
     @property
     def stop_line_distance_m(self) -> float:
@@ -327,10 +328,12 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         )
         terms = reward_terms(signals, self.reward_config)
         reward = float(sum(terms.values()))
+        costs = cost_terms(signals)
         terminated = collision or arrived or ego is None
         truncated = not terminated and self._steps >= self.config.max_episode_steps
         self._done = terminated or truncated
-        return observation, reward, terminated, truncated, self._info(collision, arrived, terms)
+        info = self._info(collision, arrived, terms, costs)
+        return observation, reward, terminated, truncated, info
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -373,12 +376,14 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         return braking, waiting
 
     def _info(
-        self, collision: bool, arrived: bool, terms: dict[str, float] | None
-    ) -> dict[str, Any]:
+        self, collision: bool, arrived: bool, terms: dict[str, float] | None,
+        costs: dict[str, float] | None,
+    ) -> dict[str, Any]:  # fmt: skip
         return {
             "task": self._task,
             "collision": collision,
-            "cost": float(collision),
+            "cost": float(sum(costs.values())) if costs is not None else 0.0,
+            "cost_terms": costs if costs is not None else {},
             "arrived": arrived,
             "travel_time_steps": self._steps,
             "ego_speed": self._ego_speed,

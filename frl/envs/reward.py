@@ -1,4 +1,5 @@
-"""The per-step reward of the paper's Eq. (2), term by term (see :class:`RewardConfig`)."""
+"""The per-step reward of the paper's Eq. (2), term by term (see :class:`RewardConfig`),
+and the step's costs, which a constraint counts apart from the reward."""
 
 from __future__ import annotations
 
@@ -10,6 +11,10 @@ REWARD_TERMS: tuple[str, ...] = (
     "time", "speed", "disturbance", "undisturbed", "collision", "arrival",
 )  # fmt: skip
 """Keys of ``info["reward_terms"]``; their values sum to the step's reward."""
+
+COST_TERMS: tuple[str, ...] = ("collision",)
+"""Keys of ``info["cost_terms"]``; their values sum to ``info["cost"]``, what a collision
+budget (``agent.collision_budget``) counts and its cost critic learns."""
 
 
 @dataclass(frozen=True)
@@ -34,3 +39,9 @@ def reward_terms(signals: RewardSignals, config: RewardConfig) -> dict[str, floa
         "collision": config.lambda_ * signals.collision,
         "arrival": config.mu * signals.arrived,
     }
+
+
+def cost_terms(signals: RewardSignals) -> dict[str, float]:
+    """Each cost of the step, unweighted: the constraint's units are the events themselves
+    (collisions per episode), not reward. A second cost is one more entry here."""
+    return {"collision": float(signals.collision)}

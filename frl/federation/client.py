@@ -27,7 +27,12 @@ from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
 from frl.agents.learn import training_step
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
-from frl.federation.drive import Drive, drive_path, read_drive, write_drive
+from frl.federation.vehicle_snapshot import (
+    VehicleSnapshot,
+    read_vehicle_snapshot,
+    snapshot_path,
+    write_vehicle_snapshot,
+)
 from frl.fileio import write_json_atomic
 from frl.policies import install_guide
 
@@ -309,7 +314,7 @@ class VehicleClient:
         environment and the episode in progress). Stays on the vehicle."""
         directory = Path(directory)
         self.agent.save(directory / f"{self.name}.pt", include_buffer=True)
-        write_drive(drive_path(directory, self.name), self._drive())
+        write_vehicle_snapshot(snapshot_path(directory, self.name), self._snapshot())
         write_json_atomic(
             directory / f"{self.name}.json",
             {
@@ -335,24 +340,24 @@ class VehicleClient:
         self._restarts = int(state["restarts"])
         self._episodes_total = int(state["episodes_total"])
         self._last_return = state["last_return"]
-        path = drive_path(directory, self.name)
+        path = snapshot_path(directory, self.name)
         if not path.exists():
             self._observation = None
             self._needs_restart = True
             return False
-        self._resume_drive(read_drive(path))
+        self._resume_snapshot(read_vehicle_snapshot(path))
         return True
 
-    def _drive(self) -> Drive:
+    def _snapshot(self) -> VehicleSnapshot:
         """Where this vehicle stands: its simulation and the episode in progress."""
         space = self.env.observation_space
         snapshot = None if self._needs_restart else self.env.snapshot()
         if self._observation is None:  # between episodes: the lists hold the one that ended
             no_steps = np.empty((0, spaces.flatdim(space)), np.float32)
             no_actions = np.empty((0, *self.env.action_space.shape), np.float32)
-            return Drive(snapshot, None, no_steps, no_actions, [], [])
+            return VehicleSnapshot(snapshot, None, no_steps, no_actions, [], [])
         # Mid-episode at a round's end: every episode has taken a step by then.
-        return Drive(
+        return VehicleSnapshot(
             snapshot=snapshot,
             observation=spaces.flatten(space, self._observation),
             episode_observations=np.stack(
@@ -363,7 +368,7 @@ class VehicleClient:
             episode_speeds=list(self._episode_speeds),
         )
 
-    def _resume_drive(self, drive: Drive) -> None:
+    def _resume_snapshot(self, drive: VehicleSnapshot) -> None:
         """Put the simulation and the running episode back as :meth:`_drive` saw them."""
         self._needs_restart = drive.snapshot is None
         if drive.snapshot is not None:

@@ -21,10 +21,10 @@ from frl.federation.codec import (
     tensors_to_arrays,
     update_from_parts,
 )
+from frl.federation.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
+from frl.federation.vehicle_host import PARAMETERS_PREFIX, SERIES_PREFIX, VehicleHost
 from frl.federation.workers import MessageHook, WorkerPool
-from frl.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
 from frl.run_directory import relative_path
-from frl.vehicle_host import PARAMETERS_PREFIX, SERIES_PREFIX, VehicleHost
 
 ProgressHook = Callable[[int, dict[str, Any]], None]
 
@@ -120,7 +120,7 @@ class ProcessClientPool:
     in frames.
 
     Each vehicle is a :class:`VehicleHost`, which answers the same request frames as a
-    Flower vehicle process (:mod:`frl.vehicle_host`): JSON headers and numpy arrays, no
+    Flower vehicle process (:mod:`frl.federation.vehicle_host`): JSON headers and numpy arrays, no
     pickled objects. With fewer ``num_workers`` than vehicles, each worker hosts a
     :class:`VehicleGroup` whose vehicles train one after the other. Use as a context
     manager, which builds every vehicle on the way in and stops every worker on the way

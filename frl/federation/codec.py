@@ -3,7 +3,7 @@
 A vehicle's specification, its updates and model parameters as plain parts: JSON-able
 headers and numpy arrays. Two carriers move the same parts:
 
-- frames (:mod:`frl.frames`) between the roadside unit's side and a vehicle
+- frames (:mod:`frl.federation.frames`) between the roadside unit's side and a vehicle
   process: over a worker pipe (``federation.backend=processes``) or a Flower vehicle's
   Unix socket;
 - Flower messages (:mod:`frl.flower.messages`) between a ServerApp and its ClientApps.
@@ -26,7 +26,7 @@ from frl.agents import DDPGConfig
 from frl.envs import EnvConfig, RewardConfig
 from frl.episodes import EpisodeRecord
 from frl.federation.client import ClientSpec, LocalUpdate
-from frl.frames import Arrays, prefixed, unprefixed
+from frl.federation.frames import Arrays, prefixed, unprefixed
 
 PARAMETER_PREFIX = "param/"
 LOSS_PREFIX = "loss/"

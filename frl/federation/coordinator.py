@@ -16,7 +16,7 @@ One round (Section III.C, Fig. 2):
 
 A run killed at any point resumes from the last committed round with nothing before it
 lost, and ends as the run never killed: each vehicle's checkpoint holds its drive
-(:mod:`frl.federation.drive`), so the episode running at the commit goes on.
+(:mod:`frl.federation.vehicle_snapshot`), so the episode running at the commit goes on.
 """
 
 from __future__ import annotations
@@ -34,10 +34,10 @@ from torch import Tensor
 from frl import run_directory as rundir
 from frl.agents.checkpoint import read_checkpoint, write_checkpoint
 from frl.agents.federated import is_target_key
-from frl.federation.budget_state import round_record
+from frl.federation.averaging import state_nbytes
 from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool
-from frl.federation.fedavg import state_nbytes
+from frl.federation.collision_budget import round_record
 from frl.federation.plan import FederationPlan, round_sample
 from frl.federation.round_tests import RoundTester
 from frl.federation.strategies import Aggregator, ServerStrategy, StrategySpec

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from frl.envs import TASKS
-from frl.federation.fedavg import TARGET_MODES, WEIGHTINGS
+from frl.federation.averaging import TARGET_MODES, WEIGHTINGS
 
 SCHEMES: tuple[str, ...] = ("central", "separate", "fedavg")
 """``central``: Central-DDPG, one agent, a random task per episode. ``separate``:

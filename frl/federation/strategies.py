@@ -35,7 +35,7 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
-from frl.federation.fedavg import fedavg
+from frl.federation.averaging import fedavg
 
 STRATEGY_PARAMETERS: dict[str, dict[str, float]] = {
     "fedavg": {},

@@ -1,7 +1,7 @@
 """The Flower backend (``federation.backend=flower``; ``pip install frl[flower]``).
 
 - :mod:`~frl.flower.vehicle`: the long-lived vehicle process behind a ClientApp; it
-  answers the frames of :mod:`frl.vehicle_host`, as the process backend's workers do.
+  answers the frames of :mod:`frl.federation.vehicle_host`, as the process backend's workers do.
 - :mod:`~frl.flower.messages`: the Flower messages between roadside unit and vehicle.
 - :mod:`~frl.flower.client_app`: the ClientApp, a relay to the vehicle process.
 - :mod:`~frl.flower.grid_pool`: the vehicles as a ``ClientPool`` over a Flower Grid.

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from flwr.app import ConfigRecord, Context, Message, MetricRecord, RecordDict
 from flwr.clientapp import ClientApp
 
+from frl.federation.frames import Arrays, prefixed, unprefixed
 from frl.flower.messages import (
     AUTHKEY_KEY,
     METRICS,
@@ -35,7 +36,6 @@ from frl.flower.vehicle import (
     VehicleError,
     call_vehicle,
 )
-from frl.frames import Arrays, prefixed, unprefixed
 
 EndpointLookup = Callable[[Context], VehicleEndpoint]
 

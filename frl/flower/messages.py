@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from flwr.app import Array, ArrayRecord, ConfigRecord, RecordDict
 
-from frl.frames import Arrays
+from frl.federation.frames import Arrays
 
 REQUEST = "frl"
 PARAMETERS = "parameters"

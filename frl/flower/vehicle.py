@@ -8,7 +8,7 @@ each vehicle keeps them in its own long-lived process, this module's *vehicle se
 and the ClientApp only relays: it opens the service's Unix socket, forwards the request
 and returns the answer as the Flower reply.
 
-The local channel carries :mod:`frl.frames` frames (JSON
+The local channel carries :mod:`frl.federation.frames` frames (JSON
 and ``.npz``, no pickle; the same requests as the process backend's worker pipes) after
 ``multiprocessing``'s HMAC handshake with a random key.
 Requests are served one at a time, in order: a vehicle does one thing at a time.
@@ -39,8 +39,8 @@ import numpy as np
 
 # Light imports only: the ClientApp imports this module for every message. The vehicle's
 # own work (torch, SUMO) is imported in the vehicle process, by VehicleHost.
-from frl.frames import Arrays, decode_frame, encode_frame
-from frl.vehicle_host import (
+from frl.federation.frames import Arrays, decode_frame, encode_frame
+from frl.federation.vehicle_host import (
     PARAMETERS_PREFIX,
     SERIES_PREFIX,
     VehicleError,

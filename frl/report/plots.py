@@ -5,11 +5,11 @@ from __future__ import annotations
 import io
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from frl.fileio import write_bytes_atomic
-from frl.plot import pyplot
 from frl.report.aggregate import (
     SCHEME_LABELS,
     TASKS,
@@ -31,6 +31,16 @@ YARDSTICK_STYLES = {
     "committed_gap_acceptance": {"color": "tab:brown", "linestyle": (0, (3, 1, 1, 1))},
     "always_brake": {"color": "gray", "linestyle": ":"},
 }
+
+
+def pyplot() -> Any:
+    """matplotlib's pyplot on the Agg backend: files only, never a window."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only; never opens a window
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def _save(figure, path: Path) -> Path:  # type: ignore[no-untyped-def]

@@ -21,7 +21,6 @@ from typing import Any
 
 import yaml
 
-from frl.budget import updates_due
 from frl.fileio import read_json
 from frl.report.aggregate import COMMITTED_RULE, RULE
 from frl.report.markdown import fmt, table
@@ -29,6 +28,7 @@ from frl.report.measures import test_metric, yardstick_metric
 from frl.report.runs import RunDataError, read_config
 from frl.report.stats import Estimate, mean_ci
 from frl.run_directory import RESULTS_FILE
+from frl.update_count import updates_due
 
 STUDY_PREFIX = "study-"
 TASK_COLUMNS = ("left", "straight", "right")
@@ -161,7 +161,7 @@ def _budget(runs: Iterable[StudyRun]) -> str:
 
 
 def _steps_and_updates(run: StudyRun) -> str:
-    """Environment steps and due updates per vehicle (:func:`frl.budget.updates_due`);
+    """Environment steps and due updates per vehicle (:func:`frl.update_count.updates_due`);
     a behaviour clone's grids and fitting steps per task."""
     clone = run.results.get("clone")
     if clone is not None:

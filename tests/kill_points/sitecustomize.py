@@ -39,7 +39,9 @@ if _KILL_AT:
     if _point == "step":
         frl.federation.client.training_step = _counting(frl.federation.client.training_step)
     elif _point == "drive":
-        frl.federation.client.write_drive = _counting(frl.federation.client.write_drive)
+        frl.federation.client.write_vehicle_snapshot = _counting(
+            frl.federation.client.write_vehicle_snapshot
+        )
     elif _point == "commit":
         _write_step_rewards = frl.run_directory.write_step_rewards
 

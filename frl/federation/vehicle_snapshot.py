@@ -22,11 +22,11 @@ import numpy as np
 from frl.envs import EnvSnapshot
 from frl.fileio import write_bytes_atomic
 
-DRIVE_SUFFIX = ".drive.npz"
+SNAPSHOT_SUFFIX = ".drive.npz"
 
 
 @dataclass
-class Drive:
+class VehicleSnapshot:
     """What :class:`frl.federation.VehicleClient` needs to go on driving after a resume."""
 
     snapshot: EnvSnapshot | None
@@ -42,12 +42,12 @@ class Drive:
     episode_speeds: list[float]
 
 
-def drive_path(directory: str | os.PathLike[str], client_name: str) -> Path:
+def snapshot_path(directory: str | os.PathLike[str], client_name: str) -> Path:
     """Where ``client_name`` writes its drive in a round's checkpoint ``directory``."""
-    return Path(directory) / f"{client_name}{DRIVE_SUFFIX}"
+    return Path(directory) / f"{client_name}{SNAPSHOT_SUFFIX}"
 
 
-def write_drive(path: str | os.PathLike[str], drive: Drive) -> None:
+def write_vehicle_snapshot(path: str | os.PathLike[str], drive: VehicleSnapshot) -> None:
     """Write ``drive`` to ``path`` atomically."""
     fields: dict[str, Any] = {
         "episode_rewards": drive.episode_rewards,  # JSON floats read back bit for bit
@@ -67,12 +67,12 @@ def write_drive(path: str | os.PathLike[str], drive: Drive) -> None:
     write_bytes_atomic(path, buffer.getvalue())
 
 
-def read_drive(path: str | os.PathLike[str]) -> Drive:
-    """The drive :func:`write_drive` wrote to ``path``."""
+def read_vehicle_snapshot(path: str | os.PathLike[str]) -> VehicleSnapshot:
+    """The drive :func:`write_vehicle_snapshot` wrote to ``path``."""
     with np.load(path, allow_pickle=False) as data:
         fields = json.loads(str(data["fields"]))
         environment = fields["environment"]
-        return Drive(
+        return VehicleSnapshot(
             snapshot=(
                 None
                 if environment is None

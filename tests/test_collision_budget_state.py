@@ -1,11 +1,11 @@
 """Where each vehicle's collision budget stands at the end of training
-(frl.federation.budget_state), against hand-computed numbers."""
+(frl.federation.collision_budget), against hand-computed numbers."""
 
 import numpy as np
 import pytest
 
 from frl.episodes import EpisodeRecord
-from frl.federation.budget_state import budget_end_state, budget_lines, round_record
+from frl.federation.collision_budget import budget_end_state, budget_lines, round_record
 
 
 def episodes(collisions: int, total: int) -> list[EpisodeRecord]:

@@ -1,7 +1,7 @@
 """The vehicle's side of the wire: a :class:`VehicleHost` answers request frames.
 
 Both backends talk to a vehicle process in the same requests (:class:`VehicleHost`)
-and the same frames (:mod:`frl.frames`): ``federation.backend=processes``
+and the same frames (:mod:`frl.federation.frames`): ``federation.backend=processes``
 over each worker's pipe (:class:`frl.federation.ProcessClientPool`), ``flower`` over
 the vehicle process's Unix socket that its ClientApp relays to
 (:mod:`frl.flower.vehicle`).
@@ -18,7 +18,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from frl.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
+from frl.federation.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
 
 SERIES_PREFIX = "series/"
 PARAMETERS_PREFIX = "parameters/"

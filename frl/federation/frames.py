@@ -2,7 +2,7 @@
 
 A frame is a length-prefixed JSON header followed by an ``.npz`` archive of arrays,
 read back with ``allow_pickle=False``. Both backends speak it to their vehicle
-processes (:mod:`frl.vehicle_host` answers). Only numpy and the standard
+processes (:mod:`frl.federation.vehicle_host` answers). Only numpy and the standard
 library are imported here: a Flower ClientApp, started afresh for every message, must
 start fast.
 """

@@ -7,7 +7,7 @@ import pytest
 from train_helpers import tiny_spec
 
 from frl.federation import VehicleClient
-from frl.federation.drive import drive_path, read_drive
+from frl.federation.vehicle_snapshot import read_vehicle_snapshot, snapshot_path
 
 # One xdist worker runs this module: libsumo holds one simulation per process.
 pytestmark = pytest.mark.xdist_group("client")
@@ -43,7 +43,7 @@ def test_a_vehicle_loaded_mid_episode_drives_on_as_if_never_stopped(
     went_on = driving.train(60)  # two episode ends, the critic bias of the saved one among them
     driving.close()  # libsumo: one simulation per process
 
-    drive = read_drive(drive_path(tmp_path, spec.name))
+    drive = read_vehicle_snapshot(snapshot_path(tmp_path, spec.name))
     assert drive.snapshot is not None and len(drive.episode_rewards) == 15
 
     resumed = VehicleClient(spec)
@@ -59,7 +59,7 @@ def test_a_checkpoint_without_a_drive_drops_the_episode(tmp_path):
     vehicle.train(45)
     vehicle.save(tmp_path)
     vehicle.close()
-    drive_path(tmp_path, spec.name).unlink()  # as checkpoints were written before drives
+    snapshot_path(tmp_path, spec.name).unlink()  # as checkpoints were written before drives
 
     resumed = VehicleClient(spec)
     assert not resumed.load(tmp_path)
