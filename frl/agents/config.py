@@ -191,8 +191,8 @@ class DDPGConfig:
     training it, so the reward critic learns as it does without a budget and the actor's
     objective takes one pass through the critic; or ``separate``, a critic of its own as
     large as the reward critic, with its own encoder, which doubles the critic's work in
-    every update and tested no safer (docs/studies.md, "A cheaper cost critic: the head"). A budget
-    saved before this field learned a separate critic, and loads as one."""
+    every update (how the two compare: docs/studies.md, "A cheaper cost critic: the
+    head"). A budget saved before this field learned a separate critic, and loads as one."""
     critic: str = "expected"
     """What the reward critic learns: ``expected``, the mean return (DDPG), or
     ``quantile``, ``quantiles`` quantiles of the return (QR-DQN's quantile Huber loss), so
