@@ -35,6 +35,7 @@ from frl.agents import DDPG
 from frl.envs import TASKS, IntersectionEnv
 from frl.episodes import run_episode
 from frl.evaluate import run_settings
+from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
 from frl.policies import GapAcceptancePolicy
 
@@ -102,10 +103,10 @@ def anatomy_of(
     files = rundir.model_files(run_dir)
     result = {}
     for task in [task for task in tasks if task in files]:
-        env = IntersectionEnv(settings.eval_env(task), settings.reward)
+        env = IntersectionEnv(evaluation_env(settings, task), settings.reward)
         try:
             agent = DDPG.from_checkpoint(files[task][0], env.observation_space, env.action_space)
-            rule = GapAcceptancePolicy(settings.eval_env(task))
+            rule = GapAcceptancePolicy(evaluation_env(settings, task))
             anatomy = TaskAnatomy()
             for seed in evaluation_seeds(settings.seed, task, episodes):
                 model_collided = drive_model(env, agent, rule, task, seed, window, anatomy)

@@ -34,6 +34,7 @@ from frl import run_directory as rundir
 from frl.agents import DDPG
 from frl.envs import TASKS, IntersectionEnv
 from frl.evaluate import run_settings
+from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
 
 BINS = (0.0, 0.01, 0.03, 0.1, 0.3, np.inf)
@@ -82,7 +83,7 @@ def calibrate(run_dir: Path, tasks: list[str], episodes: int) -> dict[str, Calib
     files = rundir.model_files(run_dir)
     found = {}
     for task in [task for task in tasks if task in files]:
-        env = IntersectionEnv(settings.eval_env(task), settings.reward)
+        env = IntersectionEnv(evaluation_env(settings, task), settings.reward)
         try:
             agent = DDPG.from_checkpoint(files[task][0], env.observation_space, env.action_space)
             found[task] = Calibration()

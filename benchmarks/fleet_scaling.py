@@ -31,6 +31,8 @@ import threading
 import time
 from pathlib import Path
 
+from frl.federation.assembly import worker_processes
+
 REPO = Path(__file__).resolve().parents[1]
 MEMORY_TARGET_GB = 8.0
 """Peak memory allowed for 24 vehicles on the 24 GB machine."""
@@ -150,7 +152,7 @@ def main() -> None:
         row = run_fleet(vehicles, args, overrides)
         rows.append(row)
         settings = validate(load_run_config(args.out / f"fleet{vehicles}"))
-        print(f"{vehicles:>8} {settings.worker_processes():>7} {row['seconds_per_round']:>8.1f} "
+        print(f"{vehicles:>8} {worker_processes(settings):>7} {row['seconds_per_round']:>8.1f} "
               f"{row['peak_gb']:>8.2f} {row['per_vehicle_mb']:>10.0f} {row['mib_per_round']:>9.1f} "
               f"{row['outside_share']:>8.1%} {row['client_cpu_s']:>7.0f} "
               f"{row['cpu_ms_per_step']:>11.1f} {row['command_s']:>9.0f}",

@@ -23,7 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from frl.envs import EnvConfig, IntersectionEnv
-from frl.federation.vehicle_snapshot import Drive, snapshot_path, read_vehicle_snapshot, write_vehicle_snapshot
+from frl.federation.vehicle_snapshot import (
+    Drive,
+    read_vehicle_snapshot,
+    snapshot_path,
+    write_vehicle_snapshot,
+)
 from frl.policies import GapAcceptancePolicy
 
 

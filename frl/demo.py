@@ -21,6 +21,7 @@ from typing import Any
 from frl.cli import OneLineParser, seed_value
 from frl.envs import TASKS, TRAFFIC_PRESETS, EnvConfig, IntersectionEnv, traffic_preset
 from frl.episodes import EpisodeRecord, run_episode, summarize
+from frl.federation.assembly import evaluation_env
 from frl.policies import GapAcceptancePolicy, install_guide, make_yardstick
 from frl.recording import Driver, film_episode, record_episode, side_by_side, write_gif
 
@@ -125,7 +126,7 @@ class RunModel:
         return evaluation_seeds(self.settings.seed, task, max(count, 1))
 
     def env_config(self, task: str) -> EnvConfig:
-        return self.settings.eval_env(task)
+        return evaluation_env(self.settings, task)
 
     def drivers(self, task: str) -> list[Driver]:
         """One driver per model of ``task`` (Sep-DDPG's fleets have several)."""

@@ -43,6 +43,7 @@ from frl.episodes import (
     run_episodes,
     summarize,
 )
+from frl.federation.assembly import evaluation_env, worker_threads
 from frl.federation.plan import evaluation_seeds, round_test_seeds
 from frl.federation.workers import WorkerPool, available_cores
 from frl.policies import (
@@ -146,7 +147,7 @@ def evaluate_policies(
             continue
         for task in tasks:
             key = yardstick_cache.cache_key(
-                name, settings.eval_env(task), settings.reward, seeds[task]
+                name, evaluation_env(settings, task), settings.reward, seeds[task]
             )
             cached = yardstick_cache.load(key)
             if cached is not None:
@@ -161,7 +162,7 @@ def evaluate_policies(
             f"eval_{task}",
             functools.partial(
                 PolicyEvaluator,
-                settings.eval_env(task),
+                evaluation_env(settings, task),
                 settings.reward,
                 _paths(model_files[task]) if model_files and MODEL in to_run else None,
                 settings.device,
@@ -171,7 +172,7 @@ def evaluate_policies(
     ]
     with WorkerPool(
         clients,
-        num_threads=settings.worker_threads(len(clients)),
+        num_threads=worker_threads(settings, len(clients)),
         timeout_s=settings.worker_timeout_s,
     ) as pool:
         for name in to_run:
@@ -264,7 +265,7 @@ def evaluate_policy(
     try:
         for task in tasks:
             env_config = dataclasses.replace(
-                settings.eval_env(task), route_observation=route_observation
+                evaluation_env(settings, task), route_observation=route_observation
             )
             env = IntersectionEnv(env_config, settings.reward)
             try:

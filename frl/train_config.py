@@ -31,18 +31,14 @@ from frl.agents.config import agent_fields_as_run
 from frl.agents.retired import RetiredOptionError
 from frl.envs import EnvConfig, RewardConfig
 from frl.envs.config import REWARD_NAMES, TRAFFIC_PRESETS
-from frl.federation.client import ClientSpec
 from frl.federation.plan import (
     FEDERATION_BACKENDS,
     FLOWER_RUNTIMES,
     FederationPlan,
-    client_seeds,
-    initial_model_seed,
-    round_test_seeds,
 )
-from frl.federation.round_tests import RoundTester
+from frl.federation.run_settings import FlowerSettings, TrainSettings
 from frl.federation.strategies import StrategySpec
-from frl.federation.workers import available_cores, threads_per_worker
+from frl.federation.workers import available_cores
 from frl.policies import DEFAULT_YARDSTICKS, YARDSTICKS, check_teacher
 from frl.run_directory import read_saved_config
 
@@ -114,23 +110,6 @@ def _schema_field(name: str, kind: Any, value: Any) -> tuple[str, Any, Any]:
         entries = dict(value)
         return (name, kind, field(default_factory=lambda: dict(entries)))
     return (name, kind, field(default=value))
-
-
-@dataclass(frozen=True)
-class FlowerSettings:
-    """``federation.backend=flower``: the runtime and the failure policy (docs/flower.md)."""
-
-    runtime: str = "simulation"
-    """simulation (one machine) | deployment (SuperLink + one SuperNode per vehicle)."""
-    superlink: str | None = None
-    """deployment: null starts a SuperLink and the SuperNodes on 127.0.0.1; "host:port"
-    submits to a running SuperLink whose SuperNodes run python -m frl.flower.node."""
-    accept_failures: bool = True
-    """A vehicle that fails is dropped and the round goes on (fedavg only), as Flower's FedAvg."""
-    min_clients: int = 2
-    """Fewest vehicles that must answer for the run to go on (fedavg)."""
-    connect_timeout_s: float = 300.0
-    """Longest wait for every vehicle's SuperNode to connect."""
 
 
 EnvSchema = schema_of(EnvConfig, "EnvSchema", exclude=("task",))
@@ -231,94 +210,6 @@ def register_configs() -> None:
 
 
 # ------------------------------------------------------------------- validation
-@dataclass(frozen=True)
-class TrainSettings:
-    """A validated configuration, as typed library objects."""
-
-    plan: FederationPlan
-    env: EnvConfig
-    reward: RewardConfig
-    agent: DDPGConfig
-    seed: int
-    eval_episodes: int
-    yardsticks: tuple[str, ...]
-    device: str
-    backend: str
-    worker_timeout_s: float | None
-    threads_per_worker: int | None
-    flower: FlowerSettings = field(default_factory=FlowerSettings)
-    cores: int | None = None
-    """CPU cores of the run; None: every available core."""
-    strategy: StrategySpec = field(default_factory=StrategySpec)
-    vehicle_envs: tuple[EnvConfig, ...] | None = None
-    """Each vehicle's training environment where the fleet's traffic differs; None: ``env``."""
-    workers: int = 0
-    round_test_episodes: int = 0
-    """Test episodes per task after every round (the per-round test curve); 0: none."""
-
-    def round_tester(self) -> RoundTester | None:
-        """The per-round tester of this run (not started), or None where it has none."""
-        if self.round_test_episodes <= 0:
-            return None
-        tasks = self.plan.test_tasks
-        seeds = {
-            task: round_test_seeds(self.seed, task, self.round_test_episodes, self.eval_episodes)
-            for task in tasks
-        }
-        return RoundTester(
-            {task: self.eval_env(task) for task in tasks},
-            self.reward,
-            self.agent,
-            seeds,
-            device=self.device,
-            num_threads=self.worker_threads(len(tasks)),
-            timeout_s=self.worker_timeout_s,
-        )
-
-    def worker_processes(self) -> int:
-        """Worker processes of the processes backend: ``federation.workers`` if set, else
-        one per vehicle while the fleet has at most max(cores, 3) vehicles (the paper's
-        three keep a process each), else max(cores, 3), whose vehicles take turns."""
-        fleet = self.plan.fleet_size
-        if self.workers:
-            return min(self.workers, fleet)
-        cores = self.cores or available_cores()
-        return min(fleet, max(cores, 3))
-
-    def worker_threads(self, num_workers: int) -> int:
-        """Torch threads of each of ``num_workers`` processes: ``threads_per_worker`` if
-        set, else the run's cores split evenly (at least one each)."""
-        return self.threads_per_worker or threads_per_worker(num_workers, self.cores)
-
-    def eval_env(self, task: str) -> EnvConfig:
-        """The test environment of ``task``: the training traffic (Section IV.B)."""
-        return dataclasses.replace(self.env, task=task)
-
-    def client_specs(self) -> list[ClientSpec]:
-        """One :class:`ClientSpec` per client of the scheme, seeded from the run seed."""
-        tasks = self.plan.client_tasks
-        init_seed = initial_model_seed(self.seed) if self.plan.shares_initial_model else None
-        envs = self.vehicle_envs or (self.env,) * len(tasks)
-        mu = self.strategy.proximal_mu if self.plan.aggregates else 0.0
-        return [
-            ClientSpec(
-                index=index,
-                task=task,
-                env=envs[index],
-                reward=self.reward,
-                agent=self.agent,
-                agent_seed=agent_seed,
-                env_seed=env_seed,
-                device=self.device,
-                init_seed=init_seed,
-                proximal_mu=mu,
-            )
-            for index, (task, (agent_seed, env_seed)) in enumerate(
-                zip(tasks, client_seeds(self.seed, len(tasks)), strict=True)
-            )
-        ]
-
-
 def validate(
     cfg: DictConfig | TrainSchema | dict[str, Any], this_machine: bool = True
 ) -> TrainSettings:

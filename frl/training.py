@@ -20,6 +20,7 @@ from frl import run_directory as rundir
 from frl.agents.config import DDPGConfig
 from frl.agents.precision import precision_report
 from frl.envs.config import traffic_name
+from frl.federation.assembly import client_specs, round_tester, worker_processes, worker_threads
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.collision_budget import budget_end_state, budget_lines
 from frl.federation.coordinator import run_logged
@@ -177,15 +178,15 @@ def train_rounds(
     Under ``flower`` with the deployment runtime the rounds run in the ServerApp's
     process, so ``on_round_end`` is not called there.
     """
-    specs = settings.client_specs()
+    specs = client_specs(settings)
     if settings.backend == "flower":
         from frl.flower.launch import train_rounds as flower_rounds
 
         return flower_rounds(settings, specs, run_dir, state, progress, on_round_end)
-    workers = settings.worker_processes()
+    workers = worker_processes(settings)
     with ProcessClientPool(
         specs,
-        num_threads=settings.worker_threads(workers),
+        num_threads=worker_threads(settings, workers),
         timeout_s=settings.worker_timeout_s,
         state_dir=run_dir,
         num_workers=workers,
@@ -199,7 +200,7 @@ def train_rounds(
             settings.seed,
             progress,
             on_round_end,
-            settings.round_tester(),
+            round_tester(settings),
         )
 
 
@@ -241,7 +242,7 @@ def collision_budget_state(settings: TrainSettings, state: RunState) -> dict[str
     noise_free = settings.agent.budget_noise_free_every > 0
     return {
         name: budget_end_state(state.budget_rounds[name], budget, noise_free)
-        for name in (spec.name for spec in settings.client_specs())
+        for name in (spec.name for spec in client_specs(settings))
         if state.budget_rounds.get(name)
     }
 
@@ -261,7 +262,7 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
         "interval_updates": plan.interval // settings.agent.train_freq,
         "total_steps": plan.total_steps,
         "tasks": list(plan.test_tasks),
-        "clients": [spec.name for spec in settings.client_specs()],
+        "clients": [spec.name for spec in client_specs(settings)],
         "fleet": {
             "vehicles": plan.fleet_size,
             "vehicle_tasks": list(plan.client_tasks),
@@ -274,7 +275,7 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
                 else [traffic_label(env.scenario) for env in settings.vehicle_envs]
             ),
             "vehicle_steps": {
-                spec.name: state.vehicle_steps.get(spec.name, 0) for spec in settings.client_specs()
+                spec.name: state.vehicle_steps.get(spec.name, 0) for spec in client_specs(settings)
             },
             "participants": state.participants or None,
         },

@@ -32,6 +32,7 @@ from frl.agents import DDPG, SparseRows
 from frl.envs import IntersectionEnv
 from frl.envs.intersection import ROUTE_DISTANCE_SCALE_M
 from frl.evaluate import run_settings
+from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
 from frl.policies import install_guide, make_yardstick
 
@@ -113,7 +114,7 @@ def main() -> None:
     files = rundir.model_files(args.run_dir)
     for task, paths in files.items():
         seeds = evaluation_seeds(settings.seed, task, args.episodes)
-        env = IntersectionEnv(replace(settings.eval_env(task), task=task))
+        env = IntersectionEnv(replace(evaluation_env(settings, task), task=task))
         try:
             agent = DDPG.from_checkpoint(paths[0], env.observation_space, env.action_space)
             install_guide(agent, env.config)

@@ -15,6 +15,7 @@ from train_helpers import compose_config
 from frl import evaluate
 from frl.envs import EnvConfig, IntersectionEnv, traffic_preset
 from frl.episodes import run_episodes, summarize
+from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds, round_test_seeds
 from frl.policies import full_throttle
 from frl.train_config import ConfigError, load_run_config, migrate_saved_config, validate
@@ -108,7 +109,7 @@ def test_traffic_is_one_hydra_choice_for_training_and_testing():
     assert default.env.scenario == traffic_preset("paper")
     dense = validate(compose_config(None, ["traffic=dense"]))
     assert dense.env.scenario == traffic_preset("dense")
-    assert dense.eval_env("left").scenario == dense.env.scenario
+    assert evaluation_env(dense, "left").scenario == dense.env.scenario
     tuned = validate(compose_config(None, ["traffic=dense", "env.scenario.lane_width=3.6"]))
     assert tuned.env.scenario == traffic_preset("dense", lane_width=3.6)
     with pytest.raises(ConfigCompositionException):
@@ -155,7 +156,7 @@ def test_yardsticks_join_a_runs_curve_on_the_curves_own_seeds(tmp_path, capsys):
     saved = json.loads((run_dir / "results.json").read_text())
     table = saved["round_tests"]["yardsticks"]["full_throttle"]
     settings = validate(load_run_config(run_dir))
-    env = IntersectionEnv(settings.eval_env("left"), settings.reward)
+    env = IntersectionEnv(evaluation_env(settings, "left"), settings.reward)
     try:  # the curve's seeds driven directly: the first two of each task's 20
         for task in ("left", "straight", "right"):
             seeds = round_test_seeds(0, task, 2, settings.eval_episodes)

@@ -12,6 +12,7 @@ import torch
 from train_helpers import compose_config, tiny_spec
 
 from frl.federation import FederationPlan, ProcessClientPool
+from frl.federation.assembly import client_specs
 from frl.federation.plan import round_sample
 from frl.report.runs import load_run
 from frl.run_directory import RESULTS_FILE
@@ -30,8 +31,8 @@ def test_a_fleet_repeats_the_tasks_interleaved_and_keeps_the_first_vehicles():
     assert separate.model_files(names)["left"] == ["client0_left.pt", "client3_left.pt"]
     assert FederationPlan(scheme="central", vehicles_per_task=4).fleet_size == 1
     # Vehicle i's seeds do not depend on the fleet's size.
-    small = validate(compose_config(None)).client_specs()
-    large = validate(compose_config(None, ["federation.vehicles_per_task=3"])).client_specs()
+    small = client_specs(validate(compose_config(None)))
+    large = client_specs(validate(compose_config(None, ["federation.vehicles_per_task=3"])))
     assert [(s.agent_seed, s.env_seed, s.task) for s in small] == [
         (s.agent_seed, s.env_seed, s.task) for s in large[:3]
     ]
@@ -99,7 +100,7 @@ def test_per_vehicle_traffic_and_proximal_weight_reach_the_vehicles():
             ],
         )
     )
-    specs = settings.client_specs()
+    specs = client_specs(settings)
     periods = [s.env.scenario.human_arrival_period_steps for s in specs]
     assert periods == [25.0, 10.0, 50.0]
     assert specs[1].env.scenario.lane_width == 3.2  # the dense preset's

@@ -15,6 +15,7 @@ from frl.agents import DDPG
 from frl.agents.checkpoint import read_checkpoint
 from frl.envs import IntersectionEnv, RewardConfig
 from frl.episodes import run_episodes, summarize
+from frl.federation.assembly import evaluation_env, round_tester
 from frl.federation.plan import evaluation_seeds, round_test_seeds
 from frl.federation.round_tests import TaskTester, actor_state
 from frl.policies import make_yardstick
@@ -47,7 +48,7 @@ def test_a_round_test_seed_that_is_a_final_test_seed_is_skipped(monkeypatch):
 def test_a_negative_round_test_episodes_is_refused():
     with pytest.raises(ConfigError, match="round_test_episodes must be a non-negative integer"):
         validate({"round_test_episodes": -1})
-    assert validate({}).round_tester() is None  # off by default
+    assert round_tester(validate({})) is None  # off by default
 
 
 def _tags(run_dir):
@@ -101,7 +102,7 @@ def test_round_tests_draw_a_curve_and_leave_training_as_it_was(tmp_path):
     }
     assert curve["yardsticks_wall_time_s"] > 0
     settings = validate(compose_config(tmp_path / "tested", overrides))
-    env = IntersectionEnv(settings.eval_env("right"), settings.reward)
+    env = IntersectionEnv(evaluation_env(settings, "right"), settings.reward)
     try:
         seeds = round_test_seeds(0, "right", 2, 0)
         direct = summarize(run_episodes(env, make_yardstick("gap_acceptance", env), "right", seeds))

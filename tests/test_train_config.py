@@ -11,6 +11,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf.errors import ValidationError
 from train_helpers import CONF_DIR, compose_config
 
+from frl.federation.assembly import client_specs, worker_threads
 from frl.federation.workers import available_cores
 from frl.train import train
 from frl.train_config import ConfigError, load_run_config, migrate_saved_config, validate
@@ -106,7 +107,7 @@ def test_the_waiting_study_is_the_learning_study_without_the_undisturbed_bonus()
     ],
 )
 def test_which_clients_share_one_initial_model(overrides, shared):
-    specs = validate(compose_config(None, overrides)).client_specs()
+    specs = client_specs(validate(compose_config(None, overrides)))
     init_seeds = {spec.init_seed for spec in specs}
     agent_seeds = {spec.agent_seed for spec in specs}
     assert len(agent_seeds) == len(specs)  # every client keeps its own streams
@@ -118,7 +119,7 @@ def test_which_clients_share_one_initial_model(overrides, shared):
 
 def test_the_shared_initial_model_depends_on_the_run_seed():
     seeds = [
-        validate(compose_config(None, [f"seed={s}"])).client_specs()[0].init_seed for s in (0, 0, 1)
+        client_specs(validate(compose_config(None, [f"seed={s}"])))[0].init_seed for s in (0, 0, 1)
     ]
     assert seeds[0] == seeds[1] != seeds[2]
 
@@ -174,13 +175,13 @@ def test_typos_and_wrong_types_fail_while_composing(overrides, message):
     ],
 )
 def test_cores_split_over_a_runs_workers(overrides, workers, threads):
-    assert validate(compose_config(None, overrides)).worker_threads(workers) == threads
+    assert worker_threads(validate(compose_config(None, overrides)), workers) == threads
 
 
 def test_the_default_cores_are_every_available_core():
     settings = validate(compose_config(None, []))
     assert settings.cores is None
-    assert settings.worker_threads(1) == available_cores()
+    assert worker_threads(settings, 1) == available_cores()
 
 
 def test_resume_needs_a_run(tmp_path):

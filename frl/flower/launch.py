@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from frl import run_directory as rundir
+from frl.federation.assembly import worker_threads
 from frl.federation.client import ClientSpec
 from frl.federation.workers import ClientFailure, stop_processes
 from frl.fileio import read_json
@@ -84,7 +85,7 @@ def _simulate(
     from frl.flower.messages import PARTITION_KEY
     from frl.flower.server_app import run_roadside_unit
 
-    threads = settings.worker_threads(len(specs))
+    threads = worker_threads(settings, len(specs))
     outcome: dict[str, Any] = {}
     with contextlib.ExitStack() as stack:
         services = [
@@ -146,7 +147,7 @@ def _deploy(settings: TrainSettings, run_dir: Path) -> RunState:
                     len(settings.plan.client_tasks),
                     state_dir=run_dir,
                     log_dir=logs,
-                    num_threads=settings.worker_threads(len(settings.plan.client_tasks)),
+                    num_threads=worker_threads(settings, len(settings.plan.client_tasks)),
                 )
             )
             address, env = federation.address, federation.env()

@@ -19,6 +19,7 @@ from flwr.app import Context
 from flwr.serverapp import Grid, ServerApp
 
 from frl import run_directory as rundir
+from frl.federation.assembly import client_specs, round_tester
 from frl.federation.client import ClientSpec
 from frl.federation.coordinator import run_logged
 from frl.fileio import write_json_atomic
@@ -62,7 +63,7 @@ def run_roadside_unit(
         settings.seed,
         progress,
         on_round_end,
-        settings.round_tester(),  # its workers run beside the roadside unit
+        round_tester(settings),  # its workers run beside the roadside unit
     )
 
 
@@ -82,7 +83,7 @@ def serve_run_dir(grid: Any, run_dir: str) -> None:
     try:
         settings = validate(load_run_config(directory))
         state = rundir.read_state(directory) or RunState()
-        run_roadside_unit(grid, settings, settings.client_specs(), directory, state)
+        run_roadside_unit(grid, settings, client_specs(settings), directory, state)
     except BaseException as error:
         write_json_atomic(
             directory / rundir.FLOWER_FAILURE_FILE,
