@@ -85,6 +85,11 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         # the paper's budget trains without a collision budget
         ("budget=paper agent.lagrange_window=10", "lagrange_window tunes the collision budget"),
         ("budget=paper agent.cost_critic=separate", "cost_critic tunes the collision budget"),
+        (
+            "budget=paper agent.budget_noise_free_every=4",
+            "budget_noise_free_every tunes the collision budget",
+        ),
+        ("agent.budget_noise_free_every=-1", "budget_noise_free_every must be an integer >= 0"),
     ],
 )
 def test_a_bad_override_to_frl_train(run_cli, override, text, tmp_path):
