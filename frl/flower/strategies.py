@@ -3,10 +3,14 @@ strategy classes (``flwr.serverapp.strategy``) behind the coordinator's interfac
 
 frl's coordinator draws the vehicles and carries the messages; each round's uploads go
 to the strategy's ``configure_train`` / ``aggregate_train`` as Flower replies would, and
-its result is the next global model. The maths is Flower's; the processes backend
-computes the same (:mod:`frl.federation.strategies`; tests/test_federation_strategies.py
-compares the two). The strategy's own state (FedAvgM's momentum, FedOpt's moments) is
-read out for checkpoints and put back on resume.
+its result is the next global model. The maths is Flower's, but for the strategies whose
+server step is the weighted mean alone (:data:`FRL_MEAN_STRATEGIES`, FedAvg among them):
+Flower sums the uploads in float32, frl in float64, and the last bits that differ after
+one round grow over a run into another driver. Those are averaged by frl's
+:func:`~frl.federation.fedavg`, so that one seed trains one run on every backend. The
+others keep Flower's arithmetic, which the processes backend matches to rounding
+(tests/test_federation_strategies.py). The strategy's own state (FedAvgM's momentum,
+FedOpt's moments) is read out for checkpoints and put back on resume.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from flwr.app import Array, ArrayRecord, ConfigRecord, Message, MetricRecord, Re
 from flwr.serverapp import strategy as flower_strategies
 from torch import Tensor
 
+from frl.federation.averaging import fedavg
 from frl.federation.strategies import StrategySpec
 
 FLOWER_CLASSES: dict[str, str] = {
@@ -32,6 +37,10 @@ FLOWER_CLASSES: dict[str, str] = {
     "fedmedian": "FedMedian",
     "fedtrimmedavg": "FedTrimmedAvg",
 }
+FRL_MEAN_STRATEGIES: tuple[str, ...] = ("fedavg", "fedprox")
+"""Strategies whose server step is the weighted mean (FedProx's term acts in the
+vehicles): frl's :func:`~frl.federation.fedavg` computes it, bit for bit the in-process
+backend's mean."""
 _STATE_ATTRIBUTES = ("momentum_vector", "m_t", "v_t")
 """Where Flower's strategies keep what they carry from round to round."""
 
@@ -65,7 +74,10 @@ class FlowerServerStrategy:
         current: Mapping[str, Tensor] | None,
         server_round: int,
     ) -> dict[str, Tensor]:
-        """The next global model, by the Flower strategy's ``aggregate_train``."""
+        """The next global model, by the Flower strategy's ``aggregate_train`` (by frl's
+        mean for :data:`FRL_MEAN_STRATEGIES`)."""
+        if self.spec.name in FRL_MEAN_STRATEGIES:
+            return fedavg(uploads, weights)
         dtypes = {key: value.dtype for key, value in uploads[0].items()}
         self._keys = list(dtypes)
         if current is not None:
