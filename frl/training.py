@@ -110,17 +110,10 @@ def train(
     )
     log.info("training: %s", schedule_line(settings.plan, settings.agent))
     if settings.agent.collision_budget is not None:
-        every = settings.agent.budget_noise_free_every
-        counted = (
-            f"training episode driven without noise (one in {every})"
-            if every
-            else "training episode"
-        )
         log.info(
-            "collision budget: %g collisions per %s, per vehicle (a cost critic and a Lagrange "
-            "multiplier per vehicle; agent.collision_budget=null: none)",
+            "collision budget: %g collisions per training episode per vehicle (a cost critic "
+            "and a Lagrange multiplier per vehicle; agent.collision_budget=null: none)",
             settings.agent.collision_budget,
-            counted,
         )
 
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -239,9 +232,8 @@ def collision_budget_state(settings: TrainSettings, state: RunState) -> dict[str
     budget = settings.agent.collision_budget
     if budget is None:
         return None
-    noise_free = settings.agent.budget_noise_free_every > 0
     return {
-        name: budget_end_state(state.budget_rounds[name], budget, noise_free)
+        name: budget_end_state(state.budget_rounds[name], budget)
         for name in (spec.name for spec in client_specs(settings))
         if state.budget_rounds.get(name)
     }

@@ -15,7 +15,6 @@ from gymnasium import spaces
 from train_helpers import TINY_AGENT, tiny_spec
 
 from frl.agents import DDPG, DDPGConfig, is_target_key
-from frl.agents.budget_episodes import BudgetEpisodes
 from frl.agents.functional import lower_tail_mean, quantile_huber_loss
 from frl.agents.lagrange import LAMBDA_MAX, PIDLagrangian
 from frl.agents.n_step import NStepAccumulator
@@ -159,9 +158,6 @@ def test_lower_tail_mean_by_hand() -> None:
         ({"critic": "distributional"}, "critic must be one of expected, quantile"),
         ({"cost_critic": "separate"}, "cost_critic tunes the collision budget"),
         ({"collision_budget": 0.1, "cost_critic": "shared"}, "cost_critic must be one of"),
-        ({"budget_noise_free_every": 4}, "budget_noise_free_every tunes the collision budget"),
-        ({"collision_budget": 0.1, "budget_noise_free_every": -1}, "budget_noise_free_every must"),
-        ({"collision_budget": 0.1, "budget_noise_free_every": 2.5}, "budget_noise_free_every must"),
     ],
 )
 def test_bad_cost_options_are_refused_naming_the_key(overrides: dict, message: str) -> None:
@@ -174,50 +170,6 @@ def test_cost_options_round_trip_a_dict() -> None:
                         quantiles=16, cvar_alpha=0.25, cost_critic="head")  # fmt: skip
     assert config.lagrange_gains == (5, 0.2, 1)
     assert DDPGConfig.from_dict(config.to_dict()) == config
-
-
-# ------------------------------------------------------ which episodes are counted
-def test_the_schedule_counts_every_kth_episode_after_the_warm_up() -> None:
-    schedule = BudgetEpisodes(3)
-    driven, counted = [], []
-    for episode in range(11):
-        schedule.begin(in_warmup=episode < 2)
-        driven.append(schedule.noise_free)
-        schedule.step(1.0)
-        counted.append(schedule.finish())
-        assert schedule.finish() is None  # a second end of the same episode counts nothing
-    assert driven == [False, False] + [i % 3 == 2 for i in range(9)]
-    assert counted == [None if not free else 1.0 for free in driven]
-    restored = BudgetEpisodes(3)
-    restored.load_state_dict(schedule.state_dict())
-    assert restored.state_dict() == schedule.state_dict()
-    going_on = []
-    for schedule_or_restored in (schedule, restored):
-        going_on.append([])
-        for _ in range(3):  # policy episodes 9, 10 and 11
-            schedule_or_restored.begin(in_warmup=False)
-            going_on[-1].append(schedule_or_restored.noise_free)
-    assert going_on == [[False, False, True]] * 2
-    every = BudgetEpisodes(0)
-    every.begin(in_warmup=True)
-    every.step(0.0)
-    assert every.finish() == 0.0 and not every.noise_free  # 0: all count, with noise
-
-
-def test_an_agent_drives_every_kth_episode_without_noise_and_counts_those_alone() -> None:
-    config = small_config(collision_budget=0.1, budget_noise_free_every=3, lagrange_window=500)
-    agent, env = DDPG(ONE, ONE, config, seed=0), RiskyDash()
-    policy_driven = []
-    for _ in range(160):  # one-step episodes; the first 100 steps are the warm-up
-        obs, _ = env.reset()
-        agent.episode_start()
-        action = agent.act(obs)
-        policy_driven.append(bool(np.array_equal(action, agent.predict(obs)[0])))
-        next_obs, reward, terminated, _, info = env.step(action)
-        agent.observe(obs, action, reward, next_obs, terminated, info["cost"])
-        agent.update()
-    assert policy_driven == [False] * 100 + [i % 3 == 2 for i in range(60)]
-    assert len(agent.constraint.lagrangian.recent) == 20
 
 
 # -------------------------------------------------------------------- the agent

@@ -37,8 +37,12 @@ ON = {
     "gradient_steps": 4,
     "random_warmup": False,
     "average_multiplier": True,
+    "budget_noise_free_every": 4,
 }
-CONTEXT = {"guide_filter": {"guide": "gap_acceptance", "guide_weight": 1.0}}
+CONTEXT = {
+    "guide_filter": {"guide": "gap_acceptance", "guide_weight": 1.0},
+    "budget_noise_free_every": {"collision_budget": 0.02},
+}
 """Other options under which a retired key's on value did something."""
 
 

@@ -110,7 +110,10 @@ def test_a_sampled_fleet_with_flowers_fedavgm_matches_the_processes_backend(tmp_
     assert results["fleet"]["participants"] == reference["fleet"]["participants"]
     assert results["fleet"]["vehicle_steps"] == reference["fleet"]["vehicle_steps"]
     assert results["communication"] == reference["communication"]
-    _assert_same_model(tmp_path / "processes", tmp_path / "flower")
+    # Flower's FedAvgM is Flower's arithmetic, frl's the processes backend's: to rounding.
+    first, second = (_global_model(tmp_path / name) for name in ("processes", "flower"))
+    for key in first:
+        torch.testing.assert_close(first[key], second[key], rtol=0, atol=1e-6, msg=key)
     assert multiprocessing.active_children() == []
 
 

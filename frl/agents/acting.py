@@ -133,13 +133,11 @@ class ActionScale:
 
 
 class Acting:
-    """An agent's actions: exploring (the explorer's, or the policy's alone in an episode
-    a collision budget drives without noise) and deterministic, on one observation or a
-    batch, for :class:`frl.agents.DDPG`."""
+    """An agent's actions, exploring (the explorer's) and deterministic, on one observation
+    or a batch, for :class:`frl.agents.DDPG`."""
 
     actor: Actor
     explorer: Any
-    constraint: Any
     layout: Any
     scale: ActionScale
     obs_dim: int
@@ -164,8 +162,7 @@ class Acting:
             self.last_policy_action = np.full(self.action_dim, np.nan)
             return self.scale.from_unit(self.explorer.warmup_action())
         action = self.last_policy_action = self._policy_action(self.layout.flat(obs))
-        noisy = explore and not (self.constraint and self.constraint.noise_free)
-        return self.scale.from_unit(self.explorer.noisy(action) if noisy else action)
+        return self.scale.from_unit(self.explorer.noisy(action) if explore else action)
 
     def predict(
         self, observation: Any, state: Any = None, episode_start: Any = None,

@@ -181,10 +181,6 @@ class DDPGConfig:
     units per collision and per unit of collision rate over budget."""
     lagrange_window: int = 50
     """Training episodes in the collision rate that the multiplier follows."""
-    budget_noise_free_every: int = 0
-    """Which training episodes the budget counts (:mod:`frl.agents.budget_episodes`). 0:
-    every one, exploration noise and all; k > 0: every k-th after the warm-up is driven by
-    the policy without noise, the policy that is tested, and only those count."""
     cost_critic: str = "head"
     """What learns the budget's Q_c: ``head``, a small MLP (one hidden layer as wide as
     the critic's last) on the reward critic's last hidden layer, which it reads without
@@ -260,15 +256,8 @@ class DDPGConfig:
             and all(math.isfinite(g) and g >= 0 for g in gains),
             f"lagrange_gains must be three finite numbers >= 0 (Kp, Ki, Kd), got {gains!r}",
         )
-        every = self.budget_noise_free_every
-        _require(
-            _is_int(every) and every >= 0,
-            f"budget_noise_free_every must be an integer >= 0, got {every!r}",
-        )
         if budget is None:
-            for name in (
-                "lagrange_gains", "lagrange_window", "cost_critic", "budget_noise_free_every"
-            ):  # fmt: skip
+            for name in ("lagrange_gains", "lagrange_window", "cost_critic"):
                 _require(
                     getattr(self, name) == getattr(DDPGConfig, name),
                     f"{name} tunes the collision budget: set collision_budget too",

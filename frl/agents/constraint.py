@@ -3,12 +3,10 @@
 Safe RL's constraint on DDPG (Stooke, Achiam and Abbeel 2020; OmniSafe's DDPG-Lag): a
 cost critic learns Q_c, the discounted collisions to come, and a Lagrange multiplier
 lambda prices it in the actor's objective, following the collision rate of the episodes
-the budget counts. The agent calls this part at five points:
+the budget counts. The agent calls this part at four points:
 
-- acting: :meth:`CollisionConstraint.episode_begins`, :meth:`~CollisionConstraint.observe_cost`
-  and :meth:`~CollisionConstraint.episode_ends` (the count behind the multiplier), and
-  :attr:`~CollisionConstraint.noise_free` (whether the running episode is driven without
-  noise, :mod:`frl.agents.budget_episodes`);
+- acting: :meth:`CollisionConstraint.observe_cost` and
+  :meth:`~CollisionConstraint.episode_ends` (the count behind the multiplier);
 - learning: :meth:`~CollisionConstraint.learn` (the cost critic's own step on the batch)
   and :meth:`~CollisionConstraint.price` (the actor's objective under the budget).
 
@@ -67,8 +65,8 @@ class CollisionConstraint:
             config.collision_budget, config.lagrange_gains, config.lagrange_window
         )
         """The multiplier (:mod:`frl.agents.lagrange`)."""
-        self.episodes = BudgetEpisodes(config.budget_noise_free_every)
-        """Which training episodes the multiplier counts, and the running one's collisions."""
+        self.episodes = BudgetEpisodes()
+        """The running training episode's collisions."""
 
     @property
     def reads_critic_hidden(self) -> bool:
@@ -76,27 +74,18 @@ class CollisionConstraint:
         return isinstance(self.networks.cost_critic, CostHead)
 
     # ------------------------------------------------------------------ acting
-    @property
-    def noise_free(self) -> bool:
-        """Whether the running training episode is driven without exploration noise."""
-        return self.episodes.noise_free
-
-    def episode_begins(self, in_warmup: bool) -> None:
-        """A training episode begins (``in_warmup``: its first action is a warm-up one)."""
-        self.episodes.begin(in_warmup)
-
     def observe_cost(self, cost: float) -> None:
         """One step of the running training episode, with ``cost`` collisions."""
         self.episodes.step(cost)
 
     def episode_ends(self) -> None:
-        """The running training episode ended: the multiplier follows it, if counted."""
+        """The running training episode ended: the multiplier follows it."""
         collisions = self.episodes.finish()
         if collisions is not None:
             self.lagrangian.episode_end(collisions)
 
     def stats(self) -> dict[str, float]:
-        """The multiplier, and the rate it follows once an episode is counted."""
+        """The multiplier, and the rate it follows once an episode has ended."""
         stats = {"lagrange_multiplier": self.lagrangian.multiplier}
         if self.lagrangian.recent:
             stats["collision_rate"] = self.lagrangian.collision_rate

@@ -154,12 +154,10 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
     def episode_start(self) -> None:
         """Call after every ``env.reset()``: the previous episode's pending n-step steps,
         cut off by a time limit, bootstrap from its last state, and count for the collision
-        budget; the noise restarts (the budget may have this episode driven without it)."""
+        budget; the noise restarts."""
         self.writer.end_episode()
         self._end_training_episode()
         self.explorer.episode_start()
-        if self.constraint is not None:
-            self.constraint.episode_begins(self.explorer.in_warmup(self.num_env_steps))
 
     def observe(
         self, obs: Any, action: Any, reward: float, next_obs: Any, terminated: bool,

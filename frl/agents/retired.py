@@ -37,6 +37,8 @@ _UNMEASURED_COMMIT = "bbf4ecc"
 _THIRD_COMMIT = "c76bc5e"
 _BUDGET = '"A collision budget"'
 _BUDGET_COMMIT = "60f3304"
+_KEEPABLE_BUDGET = '"A budget the car can keep"'
+_KEEPABLE_BUDGET_COMMIT = "RETIRING"
 
 RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "action_repeat": RetiredOption(1, _DRIVE_WELL),
@@ -59,6 +61,7 @@ RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "gradient_steps": RetiredOption(1, _LEVERS, _THIRD_COMMIT),
     "random_warmup": RetiredOption(True, None, _THIRD_COMMIT),
     "average_multiplier": RetiredOption(False, _BUDGET, _BUDGET_COMMIT),
+    "budget_noise_free_every": RetiredOption(0, _KEEPABLE_BUDGET, _KEEPABLE_BUDGET_COMMIT),
 }
 """Each retired key, with its off value and its study."""
 

@@ -5,9 +5,7 @@ collision rate (:mod:`frl.agents.lagrange`). Whether the budget was met, and whe
 multiplier settled or kept growing (a budget out of the car's reach makes it a penalty
 that rises with time), are read here from what the vehicle reports each round: the
 episodes that ended in it, the multiplier after its last update and the rate it followed
-then. Where the budget counts only the episodes driven without noise
-(``agent.budget_noise_free_every``, :mod:`frl.agents.budget_episodes`), it is kept or not
-on that rate, the one of the policy that is tested.
+then (its last ``lagrange_window`` episodes).
 """
 
 from __future__ import annotations
@@ -58,22 +56,18 @@ def _last_known(values: np.ndarray | None) -> float | None:
     return float(known[-1]) if known.size else None
 
 
-def budget_end_state(
-    rounds: Sequence[dict[str, Any]], budget: float, noise_free: bool = False
-) -> dict[str, Any]:
+def budget_end_state(rounds: Sequence[dict[str, Any]], budget: float) -> dict[str, Any]:
     """A vehicle's budget at the end of training, from its :func:`round_record` per round.
 
-    ``kept``: the rate the budget counts within :data:`KEPT_FACTOR` times ``budget``: the
-    last round's training collision rate, or with ``noise_free`` (the budget counts only
-    the episodes driven without noise) the rate the multiplier followed at the end;
-    ``levelled_off``: the multiplier's change over the last round within
-    :data:`LEVELLED_SHARE` of its value or :data:`LEVELLED_FLOOR` (None before two rounds
-    with a multiplier)."""
+    ``kept``: the last round's training collision rate within :data:`KEPT_FACTOR` times
+    ``budget``; ``followed_collision_rate``: the rate the multiplier followed at the end
+    (None for a run recorded before it was kept); ``levelled_off``: the multiplier's
+    change over the last round within :data:`LEVELLED_SHARE` of its value or
+    :data:`LEVELLED_FLOOR` (None before two rounds with a multiplier)."""
     rates = [r["collisions"] / r["episodes"] if r["episodes"] else None for r in rounds]
     multipliers = [r["multiplier"] for r in rounds]
     followed = rounds[-1].get("followed_rate") if rounds else None  # absent: older runs
     last_rate = rates[-1] if rates else None
-    counted_rate = followed if noise_free else last_rate
     known = [m for m in multipliers if m is not None]
     change = known[-1] - known[-2] if len(known) >= 2 else None
     levelled = None
@@ -81,10 +75,9 @@ def budget_end_state(
         levelled = abs(change) <= max(LEVELLED_SHARE * abs(known[-1]), LEVELLED_FLOOR)
     return {
         "budget": budget,
-        "counts": "noise-free episodes" if noise_free else "all training episodes",
         "last_round_collision_rate": last_rate,
         "followed_collision_rate": followed,
-        "kept": None if counted_rate is None else counted_rate <= KEPT_FACTOR * budget,
+        "kept": None if last_rate is None else last_rate <= KEPT_FACTOR * budget,
         "multiplier": known[-1] if known else None,
         "multiplier_change_last_round": change,
         "levelled_off": levelled,
@@ -101,19 +94,10 @@ def budget_lines(end_states: dict[str, dict[str, Any]]) -> list[str]:
         rate = end["last_round_collision_rate"]
         budget = end["budget"]
         kept = {True: "kept", False: "NOT kept", None: "no episode"}[end["kept"]]
-        if end.get("counts") == "noise-free episodes":
-            line = (
-                f"{vehicle}: noise-free collisions {_percent(end['followed_collision_rate'])} "
-                f"(the multiplier's window at the end; all training episodes of its last "
-                f"round {_percent(rate)}) against a budget of {_percent(budget)} ({kept}, at "
-                f"most {KEPT_FACTOR:g} times the budget)"
-            )
-        else:
-            line = (
-                f"{vehicle}: training collisions {_percent(rate)} over its last round against "
-                f"a budget of {_percent(budget)} ({kept}, at most {KEPT_FACTOR:g} times the "
-                "budget)"
-            )
+        line = (
+            f"{vehicle}: training collisions {_percent(rate)} over its last round against a "
+            f"budget of {_percent(budget)} ({kept}, at most {KEPT_FACTOR:g} times the budget)"
+        )
         if end["multiplier"] is not None:
             change = end["multiplier_change_last_round"]
             settled = {True: "levelled off", False: "still moving", None: "one round only"}
