@@ -38,7 +38,7 @@ _THIRD_COMMIT = "c76bc5e"
 _BUDGET = '"A collision budget"'
 _BUDGET_COMMIT = "60f3304"
 _KEEPABLE_BUDGET = '"A budget the car can keep"'
-_KEEPABLE_BUDGET_COMMIT = "RETIRING"
+_KEEPABLE_BUDGET_COMMIT = "f5359cd"
 
 RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "action_repeat": RetiredOption(1, _DRIVE_WELL),
