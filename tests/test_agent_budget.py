@@ -247,12 +247,12 @@ def test_checkpoints_hold_the_cost_critic_and_the_multiplier(
 ) -> None:
     agent = dash_agent(0.1, seed=3, cost_critic=cost_critic)
     train_dash(agent, 300)
-    agent.constraint.episodes.step(1.0)  # an episode running at the save, with a collision
+    agent.constraint.observe_cost(1.0)  # an episode running at the save, with a collision
     agent.save(tmp_path / "a.pt", include_buffer=True)
     restored = dash_agent(0.1, seed=99, cost_critic=cost_critic)
     restored.restore(tmp_path / "a.pt")
     assert restored.constraint.lagrangian.state_dict() == agent.constraint.lagrangian.state_dict()
-    assert restored.constraint.episodes.state_dict() == agent.constraint.episodes.state_dict()
+    assert restored.constraint.state_dict() == agent.constraint.state_dict()
     np.testing.assert_array_equal(restored.buffer.costs, agent.buffer.costs)
     agent.episode_start()
     restored.episode_start()

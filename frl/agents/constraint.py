@@ -23,7 +23,6 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from frl.agents.budget_episodes import BudgetEpisodes
 from frl.agents.config import DDPGConfig
 from frl.agents.functional import td_target
 from frl.agents.lagrange import PIDLagrangian
@@ -36,8 +35,8 @@ Descend = Callable[[torch.optim.Optimizer, Tensor], None]
 
 
 class CollisionConstraint:
-    """The cost critic's optimizer, the PID multiplier and the episodes they count, for
-    the cost networks of ``networks`` (which must have them).
+    """The cost critic's optimizer, the PID multiplier and the running episode's count,
+    for the cost networks of ``networks`` (which must have them).
 
     Args:
         config: the agent's config, with ``collision_budget`` set.
@@ -65,8 +64,10 @@ class CollisionConstraint:
             config.collision_budget, config.lagrange_gains, config.lagrange_window
         )
         """The multiplier (:mod:`frl.agents.lagrange`)."""
-        self.episodes = BudgetEpisodes()
-        """The running training episode's collisions."""
+        self.episode_cost, self.episode_steps = 0.0, 0
+        """The running training episode's collisions and steps. Every training episode
+        counts, exploration noise and all: counting only noise-free ones was measured and
+        retired (docs/studies.md, "A budget the car can keep")."""
 
     @property
     def reads_critic_hidden(self) -> bool:
@@ -76,13 +77,15 @@ class CollisionConstraint:
     # ------------------------------------------------------------------ acting
     def observe_cost(self, cost: float) -> None:
         """One step of the running training episode, with ``cost`` collisions."""
-        self.episodes.step(cost)
+        self.episode_cost += cost
+        self.episode_steps += 1
 
     def episode_ends(self) -> None:
-        """The running training episode ended: the multiplier follows it."""
-        collisions = self.episodes.finish()
-        if collisions is not None:
-            self.lagrangian.episode_end(collisions)
+        """The running training episode ended: the multiplier follows it (nothing if no
+        step was counted since the last end)."""
+        if self.episode_steps:
+            self.lagrangian.episode_end(self.episode_cost)
+        self.episode_cost, self.episode_steps = 0.0, 0
 
     def stats(self) -> dict[str, float]:
         """The multiplier, and the rate it follows once an episode has ended."""
@@ -140,8 +143,13 @@ class CollisionConstraint:
     def state_dict(self) -> dict[str, Any]:
         """The multiplier and the running episode's count, as checkpoints keep them (the
         optimizer's state is saved beside the agent's others)."""
-        return {"multiplier": self.lagrangian.state_dict(), **self.episodes.state_dict()}
+        return {
+            "multiplier": self.lagrangian.state_dict(),
+            "episode_cost": self.episode_cost,
+            "episode_steps": self.episode_steps,
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.lagrangian.load_state_dict(state["multiplier"])
-        self.episodes.load_state_dict(state)
+        self.episode_cost = float(state["episode_cost"])
+        self.episode_steps = int(state["episode_steps"])

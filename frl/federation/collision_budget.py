@@ -39,7 +39,7 @@ def round_record(
 ) -> dict[str, Any]:
     """One vehicle's round: its finished training episodes, their collisions, the
     multiplier after the round's last update and the collision rate it followed then (its
-    last ``lagrange_window`` counted episodes); None without a budget or an update."""
+    last ``lagrange_window`` episodes); None without a budget or an update."""
     return {
         "episodes": len(episodes),
         "collisions": int(sum(episode.collision for episode in episodes)),
