@@ -24,7 +24,7 @@ import numpy as np
 
 from frl.envs import EnvConfig, IntersectionEnv
 from frl.federation.vehicle_snapshot import (
-    Drive,
+    VehicleSnapshot,
     read_vehicle_snapshot,
     snapshot_path,
     write_vehicle_snapshot,
@@ -32,7 +32,7 @@ from frl.federation.vehicle_snapshot import (
 from frl.policies import GapAcceptancePolicy
 
 
-def drive_steps(env: IntersectionEnv, steps: int, seed: int) -> Drive:
+def drive_steps(env: IntersectionEnv, steps: int, seed: int) -> VehicleSnapshot:
     """``steps`` steps of the rule across episodes in one simulation; the drive then, with
     the running episode as a vehicle saves it."""
     policy = GapAcceptancePolicy(env.config)
@@ -46,7 +46,7 @@ def drive_steps(env: IntersectionEnv, steps: int, seed: int) -> Drive:
         if terminated or truncated:
             observation, _ = env.reset()
             observations, actions = [], []
-    return Drive(
+    return VehicleSnapshot(
         snapshot=env.snapshot(),
         observation=observation.reshape(-1),
         episode_observations=np.stack(observations) if observations else np.empty((0, 1)),

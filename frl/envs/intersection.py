@@ -267,6 +267,8 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         episode continues as if nothing had happened since the snapshot.
         """
         self._start_simulation(snapshot.sumo_seed)
+        assert self._simulation is not None
+        self._simulation.read_vehicles(False)
         insertions = iter(snapshot.ego_insertions)
         pending = next(insertions, None)
         for index, speed in enumerate(snapshot.ego_speed_commands):
@@ -277,12 +279,12 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         while pending is not None:
             self._insert_ego(pending[1])
             pending = next(insertions, None)
+        self._simulation.read_vehicles(True)
         self.np_random.bit_generator.state = copy.deepcopy(snapshot.rng_state)
         self._task = snapshot.task
         self._steps = snapshot.steps
         self._done = snapshot.done
         self._travelled = snapshot.travelled
-        assert self._simulation is not None
         self._vehicles = self._simulation.vehicles()
         ego = _find_ego(self._vehicles)
         self._ego_speed = (
