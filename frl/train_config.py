@@ -36,6 +36,7 @@ from frl.federation.plan import (
     FLOWER_RUNTIMES,
     FederationPlan,
 )
+from frl.federation.reachability import unreachable_reason
 from frl.federation.run_settings import FlowerSettings, TrainSettings
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores
@@ -252,7 +253,7 @@ def validate(
         raise ConfigError(
             f"unknown yardstick {unknown_yardsticks[0]!r}; choose from {', '.join(YARDSTICKS)}"
         )
-    flower = _flower_settings(federation)
+    flower = _flower_settings(federation, this_machine)
     timeout = federation["worker_timeout_s"]
     if timeout is not None and not timeout > 0:
         raise ConfigError(f"federation.worker_timeout_s must be positive, got {timeout!r}")
@@ -422,8 +423,9 @@ def _check_cores(cores: int, this_machine: bool = True) -> int | None:
     return cores or None
 
 
-def _flower_settings(federation: dict[str, Any]) -> FlowerSettings:
-    """Check ``federation.flower``; with ``backend=flower``, also that Flower is installed."""
+def _flower_settings(federation: dict[str, Any], this_machine: bool = True) -> FlowerSettings:
+    """Check ``federation.flower``; with ``backend=flower``, also that Flower is installed
+    and (``this_machine``) that the SuperLink named answers."""
     keys = dict(federation["flower"])
     runtime = keys["runtime"]
     if runtime not in FLOWER_RUNTIMES:
@@ -445,6 +447,13 @@ def _flower_settings(federation: dict[str, Any]) -> FlowerSettings:
         )
     if federation["backend"] == "flower":
         _require_flower(runtime)
+        if runtime == "deployment" and superlink is not None and this_machine:
+            why = unreachable_reason(superlink)
+            if why is not None:
+                raise ConfigError(
+                    f"federation.flower.superlink={superlink}: nothing answers there ({why}); "
+                    "start the SuperLink first, or leave the key unset for a local federation"
+                )
     return FlowerSettings(**keys)
 
 

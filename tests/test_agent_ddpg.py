@@ -233,6 +233,14 @@ def test_save_without_buffer_resumes_with_empty_buffer(tmp_path: Path) -> None:
     assert len(restored.buffer) == 0 and restored.num_env_steps == 30
 
 
+def test_save_bytes_are_the_file_save_writes(tmp_path: Path) -> None:
+    """A Flower vehicle sends them, and the roadside unit writes the same model file."""
+    agent = DDPG(GRID, ACCEL, SMALL)
+    run(agent, 30)
+    agent.save(tmp_path / "a.pt")
+    assert agent.save_bytes() == (tmp_path / "a.pt").read_bytes()
+
+
 def test_truncated_corrupt_and_foreign_files_raise_checkpoint_error(tmp_path: Path) -> None:
     agent = DDPG(GRID, ACCEL, SMALL)
     good = tmp_path / "good.pt"

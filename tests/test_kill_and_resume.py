@@ -6,16 +6,16 @@ SIGKILL to its whole process group (run, forkserver, workers) at a chosen moment
 roadside unit commits a round, and while a resumed vehicle replays its simulation.
 """
 
-import importlib.util
 import os
 import shutil
 import signal
 import subprocess
 import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import pytest
-from train_helpers import TINY_OVERRIDES, compose_config
+from train_helpers import TINY_OVERRIDES, compose_config, load_script
 
 from frl import run_directory as rundir
 from frl.federation.vehicle_snapshot import SNAPSHOT_SUFFIX
@@ -24,9 +24,7 @@ from frl.train import train
 ROOT = Path(__file__).resolve().parents[1]
 KILL_POINTS = Path(__file__).resolve().parent / "kill_points"
 
-_spec = importlib.util.spec_from_file_location("same_run", ROOT / "scripts" / "same_run.py")
-same_run = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(same_run)
+same_run = load_script("same_run")
 
 # 4 rounds of 80 environment steps per vehicle, episodes of at most 50 steps: most
 # commits fall inside an episode. Each vehicle has a worker process of its own, whose
@@ -38,13 +36,21 @@ OVERRIDES = [
 ]  # fmt: skip
 
 
-def _session(run_dir: Path, kill_at: str | None, resume: bool) -> subprocess.CompletedProcess:
-    """One session of the killed run: ``python -m frl.train``, killed at ``kill_at``."""
+def _session(
+    run_dir: Path,
+    kill_at: str | None,
+    resume: bool,
+    overrides: Sequence[str] = (),
+    env_extra: Mapping[str, str] | None = None,
+) -> subprocess.CompletedProcess:
+    """One session of the killed run: ``python -m frl.train`` (:data:`OVERRIDES`, then
+    ``overrides``), killed at ``kill_at``."""
     env = {key: value for key, value in os.environ.items() if key != "FRL_KILL_AT"}
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(KILL_POINTS), env.get("PYTHONPATH")]))
+    env.update(env_extra or {})
     if kill_at is not None:
         env["FRL_KILL_AT"] = kill_at
-    command = [sys.executable, "-m", "frl.train", *OVERRIDES, f"run_dir={run_dir}"]
+    command = [sys.executable, "-m", "frl.train", *OVERRIDES, *overrides, f"run_dir={run_dir}"]
     if resume:
         command.append(f"resume={run_dir}")
     # A guard against a hang, not a speed target.

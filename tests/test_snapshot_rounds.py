@@ -1,25 +1,12 @@
 """scripts/snapshot_rounds.py: a copy taken at a round, resumed, is the shorter run."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-from train_helpers import compose_config
+from train_helpers import compose_config, load_script
 
 from frl.train import train
 
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
-
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-snapshot_rounds = _load("snapshot_rounds")
-same_run = _load("same_run")
+snapshot_rounds = load_script("snapshot_rounds")
+same_run = load_script("same_run")
 
 OVERRIDES = ["federation=fedavg", "federation.tasks=[left,right]", "cores=1"]
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
+from types import ModuleType
 
 from hydra import compose, initialize_config_dir
 
@@ -12,6 +14,7 @@ from frl.federation import ClientSpec
 from frl.train_config import register_configs
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "frl" / "conf")
+SCRIPTS_DIR = Path(__file__).resolve().parents[1] / "scripts"
 
 TINY_OVERRIDES = [
     "total_steps=240",
@@ -54,3 +57,12 @@ def tiny_spec(index: int, task: str, seed: int = 0) -> ClientSpec:
         agent_seed=seed + index,
         env_seed=2 * (seed + index),
     )
+
+
+def load_script(name: str) -> ModuleType:
+    """``scripts/NAME.py`` as a module (the scripts are no package)."""
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS_DIR / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -3,6 +3,7 @@ checks that refuse a file of another agent before anything is changed."""
 
 from __future__ import annotations
 
+import io
 import os
 import types
 from collections.abc import Callable
@@ -25,6 +26,14 @@ CHECKPOINT_VERSION = 1
 
 class CheckpointError(ValueError):
     """A file is not a readable checkpoint of this format and version."""
+
+
+def checkpoint_bytes(payload: dict[str, Any]) -> bytes:
+    """The bytes :func:`write_checkpoint` writes for ``payload`` (a file sent elsewhere)."""
+    data = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, **payload}
+    buffer = io.BytesIO()
+    torch.save(data, buffer)
+    return buffer.getvalue()
 
 
 def write_checkpoint(payload: dict[str, Any], path: str | os.PathLike[str]) -> None:
@@ -246,6 +255,11 @@ class Checkpointing:
         """Write networks, optimizers, noise, counters and generators (and the buffer),
         atomically; the file loads with ``torch.load(weights_only=True)``."""
         write_checkpoint(agent_payload(self, include_buffer), path)
+
+    def save_bytes(self) -> bytes:
+        """What :meth:`save` writes without the buffer, as bytes (a model file made on
+        another host)."""
+        return checkpoint_bytes(agent_payload(self, include_buffer=False))
 
     def restore(self, path: FilePath) -> None:
         """Load a :meth:`save` file into this agent (same config and spaces): exact resume,

@@ -388,5 +388,9 @@ class VehicleClient:
         """Write the model alone (no replay buffer), loadable with ``DDPG.from_checkpoint``."""
         self.agent.save(path, include_buffer=False)
 
+    def model_file(self) -> bytes:
+        """The bytes :meth:`save_model` writes, for a roadside unit on another host."""
+        return self.agent.save_bytes()
+
     def close(self) -> None:
         self.env.close()

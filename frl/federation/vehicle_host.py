@@ -18,10 +18,14 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from frl.federation.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
 
 SERIES_PREFIX = "series/"
 PARAMETERS_PREFIX = "parameters/"
+MODEL_FILE_KEY = "model_file"
+"""The array (uint8) a ``model_file`` reply carries the file's bytes in."""
 
 
 class VehicleError(RuntimeError):
@@ -34,9 +38,10 @@ class VehicleHost:
     Requests (``header["op"]``): ``ping``; ``setup`` builds the vehicle of a run
     (idempotent); ``train`` runs local training; ``sync`` loads the global model and/or
     writes a checkpoint; ``load`` restores one and says whether it held the vehicle's
-    drive; ``model`` returns the full model (Flower: the roadside unit writes it);
-    ``save_model`` writes it under ``state_dir``. Paths are relative to ``state_dir``
-    and must stay inside it.
+    drive; ``model`` returns the networks (online and target); ``save_model`` writes the
+    model file under ``state_dir``, and ``model_file`` returns that file's bytes (Flower:
+    the roadside unit writes it). Paths are relative to ``state_dir`` and must stay
+    inside it.
     """
 
     def __init__(self, state_dir: str | os.PathLike[str]) -> None:
@@ -98,6 +103,9 @@ class VehicleHost:
         if op == "save_model":
             client.save_model(self._path(str(header["path"])))
             return {}, {}
+        if op == "model_file":  # save_model's file, for a roadside unit on another host
+            data = np.frombuffer(client.model_file(), np.uint8)
+            return {}, prefixed({MODEL_FILE_KEY: data}, PARAMETERS_PREFIX)
         raise VehicleError(f"unknown request {op!r}")
 
     def _setup(self, run_key: str, spec_json: str) -> dict[str, Any]:

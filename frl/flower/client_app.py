@@ -19,6 +19,7 @@ from frl.federation.frames import Arrays, prefixed, unprefixed
 from frl.flower.messages import (
     AUTHKEY_KEY,
     METRICS,
+    NUM_PARTITIONS_KEY,
     PARAMETERS,
     PARTITION_KEY,
     QUERY_OPS,
@@ -51,15 +52,33 @@ def node_endpoint(context: Context) -> VehicleEndpoint:
     return VehicleEndpoint(str(config[SOCKET_KEY]), str(config[AUTHKEY_KEY]))
 
 
+def node_partition(context: Context, num_vehicles: int) -> int:
+    """The run's client this node hosts: its ``partition-id``, checked against the run.
+
+    Raises:
+        VehicleError: the node was started for another fleet (``--partition-id`` or
+            ``--num-partitions`` of ``python -m frl.flower.node`` do not fit the run).
+    """
+    partition = int(context.node_config[PARTITION_KEY])
+    declared = int(context.node_config.get(NUM_PARTITIONS_KEY, num_vehicles))
+    if not 0 <= partition < num_vehicles:
+        raise VehicleError(
+            f"--partition-id {partition} names no vehicle of this run: it has {num_vehicles} "
+            f"(partition ids 0-{num_vehicles - 1})"
+        )
+    if declared != num_vehicles:
+        raise VehicleError(
+            f"--num-partitions {declared} does not match this run's {num_vehicles} vehicles"
+        )
+    return partition
+
+
 def relay(message: Message, context: Context, endpoint_for: EndpointLookup) -> Message:
     """Forward ``message`` to the vehicle process and wrap its answer as the reply."""
     header = read_header(message.content)
     if header["op"] == "setup":  # every node gets every spec; it takes its own
-        partition = int(context.node_config[PARTITION_KEY])
         specs = header.pop("specs")
-        if not 0 <= partition < len(specs):
-            raise VehicleError(f"partition-id {partition} names no vehicle of this run")
-        header["spec"] = specs[partition]
+        header["spec"] = specs[node_partition(context, len(specs))]
     arrays: Arrays = {}
     if PARAMETERS in message.content.array_records:
         arrays = prefixed(record_to_arrays(message.content[PARAMETERS]), PARAMETERS_PREFIX)

@@ -33,12 +33,15 @@ from frl.federation.codec import (
     tensors_to_arrays,
     update_from_parts,
 )
+from frl.federation.vehicle_host import MODEL_FILE_KEY
 from frl.federation.workers import ClientFailure
+from frl.fileio import write_bytes_atomic
 from frl.flower.messages import (
     METRICS,
     PARAMETERS,
     PARTITION_KEY,
     SERIES,
+    error_text,
     message_type,
     read_header,
     record_to_arrays,
@@ -124,22 +127,24 @@ class FlowerClientPool:
         by_partition: dict[int, int] = {}
         for reply in self.grid.send_and_receive(messages, timeout=self.timeout_s):
             node = reply.metadata.src_node_id
-            if reply.has_error():
-                log.warning("SuperNode %s refused to set up: %s", node, reply.error.reason)
-                continue
+            if reply.has_error():  # a node of another fleet: no round can be right
+                raise ClientFailure(
+                    "(all)",
+                    f"SuperNode {node} refused the run: {error_text(reply.error.reason)}",
+                )
             partition = int(read_header(reply.content)[PARTITION_KEY])
             if partition in by_partition:
                 raise ClientFailure(
                     self.specs[partition].name,
-                    f"SuperNodes {by_partition[partition]} and {node} both have partition-id "
-                    f"{partition}",
+                    f"SuperNodes {by_partition[partition]} and {node} were both started with "
+                    f"--partition-id {partition}; give each vehicle's node its own",
                 )
             by_partition[partition] = node
         missing = [spec for spec in self._live() if spec.index not in by_partition]
         if missing:
             raise ClientFailure(
                 missing[0].name,
-                f"no SuperNode with partition-id {missing[0].index} set up its vehicle "
+                f"no SuperNode with --partition-id {missing[0].index} set up its vehicle "
                 f"(connected nodes: {len(node_ids)})",
             )
         self._nodes = {spec.index: by_partition[spec.index] for spec in self.specs}
@@ -169,7 +174,7 @@ class FlowerClientPool:
         for reply in self.grid.send_and_receive(messages, timeout=self.timeout_s):
             index = by_node[reply.metadata.src_node_id]
             if reply.has_error():
-                failures[index] = reply.error.reason
+                failures[index] = error_text(reply.error.reason)
             else:
                 replies[index] = reply
         log.debug("%s: %d replies in %.2f s", op, len(replies), time.perf_counter() - began)
@@ -305,10 +310,10 @@ class FlowerClientPool:
             # If the vehicle fails now (and is dropped), under FedAvg any other holds
             # the same global model.
             for candidate in [spec, *[s for s in self._live() if s is not spec]]:
-                replies = self._exchange("model", {candidate.index: {}})
+                replies = self._exchange("model_file", {candidate.index: {}})
                 if candidate.index in replies:
                     arrays = record_to_arrays(replies[candidate.index].content[PARAMETERS])
-                    write_model(candidate, arrays, path)
+                    write_model_file(candidate.name, arrays[MODEL_FILE_KEY].tobytes(), path)
                     break
             else:
                 raise ClientFailure(spec.name, "no vehicle left to upload the final model")
@@ -317,19 +322,15 @@ class FlowerClientPool:
         return relative_path(directory, self.run_dir)
 
 
-def write_model(spec: ClientSpec, arrays: Mapping[str, Any], path: Path) -> None:
-    """Write a vehicle's uploaded parameters as a model file (``DDPG.from_checkpoint``).
+def write_model_file(client: str, data: bytes, path: Path) -> None:
+    """Write the model file a vehicle sent, as the in-process backend's vehicle writes it
+    (the same bytes), after checking that it loads as a checkpoint, tensors only."""
+    import io
 
-    The roadside unit builds the same agent from the spec (no SUMO starts) and loads the
-    networks; optimizer moments and the replay buffer stay on the vehicle.
-    """
-    import dataclasses
+    import torch
 
-    from frl.agents import DDPG
-    from frl.envs import IntersectionEnv
-    from frl.federation.codec import arrays_to_tensors
-
-    env = IntersectionEnv(dataclasses.replace(spec.env, task=spec.task), spec.reward)
-    agent = DDPG(env.observation_space, env.action_space, spec.agent, seed=spec.agent_seed)
-    agent.load_federated_state(arrays_to_tensors(arrays))
-    agent.save(path, include_buffer=False)
+    try:
+        torch.load(io.BytesIO(data), weights_only=True, map_location="cpu")
+    except Exception as error:  # a vehicle's file that would not load later
+        raise ClientFailure(client, f"its model file does not load: {error}") from None
+    write_bytes_atomic(path, data)

@@ -21,6 +21,7 @@ import contextlib
 import logging
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -35,7 +36,9 @@ from frl.federation.client import ClientSpec
 from frl.federation.workers import ClientFailure, stop_processes
 from frl.fileio import read_json
 from frl.flower.node import (
+    StartedProcesses,
     VehicleNode,
+    ends_with_this_process,
     flower_env,
     flower_executable,
     free_port,
@@ -179,7 +182,11 @@ def _submit(address: str, run_dir: Path, env: dict[str, str], log_path: Path) ->
         log.info("submitting the run to the SuperLink at %s", address)
         with open(log_path, "ab") as out:
             result = subprocess.run(
-                command, env={**env, "FLWR_HOME": home}, stdout=out, stderr=subprocess.STDOUT
+                command,
+                env={**env, "FLWR_HOME": home},
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                preexec_fn=ends_with_this_process(),
             )
         if result.returncode != 0:
             raise RuntimeError(f"`flwr run` failed (exit code {result.returncode}); see {log_path}")
@@ -189,7 +196,7 @@ def _toml_string(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
-class LocalFederation:
+class LocalFederation(StartedProcesses):
     """A SuperLink and one SuperNode per vehicle (each with its vehicle process) on
     127.0.0.1, as separate processes; a context manager that leaves none behind.
 
@@ -224,17 +231,6 @@ class LocalFederation:
     def env(self) -> dict[str, str]:
         return flower_env({**POLL_ENV, TOKEN_VAR: self.token})
 
-    def __enter__(self) -> LocalFederation:
-        try:
-            self.start()
-        except BaseException:
-            self.close()
-            raise
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
     def start(self) -> None:
         self._home = Path(tempfile.mkdtemp(prefix="frl-flwr-"))
         self.port = free_port()
@@ -253,6 +249,9 @@ class LocalFederation:
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
+                # A SuperLink waits out its runs on SIGTERM; one whose roadside unit is
+                # gone must not wait.
+                preexec_fn=ends_with_this_process(signal.SIGKILL),
             )
         _wait_for_port(self.port, self._superlink, self.start_timeout_s, "the SuperLink")
         # One at a time, from this thread: starting a vehicle process swaps sys.modules'
@@ -316,8 +315,6 @@ def processes_with_token(token: str) -> list[int]:
 
 def sweep_token(token: str, grace_s: float = 5.0) -> None:
     """SIGTERM, then SIGKILL, every process still carrying ``token`` (all started by us)."""
-    import signal
-
     if not Path("/proc").is_dir():
         return
     for sig in (signal.SIGTERM, signal.SIGKILL):

@@ -9,12 +9,14 @@ the round, Flower's FedAvg weight key). Arrays cross the wire as numpy ``.npy`` 
 written with ``allow_pickle=False``; nothing is pickled.
 
 Message types: ``train`` (local training), ``query.setup``, ``query.sync`` (global model
-and/or checkpoint), ``query.load``, ``query.model``.
+and/or checkpoint), ``query.load``, ``query.model`` (the networks), ``query.model_file``
+(the final model file).
 """
 
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -27,12 +29,33 @@ REQUEST = "frl"
 PARAMETERS = "parameters"
 SERIES = "series"
 METRICS = "metrics"
-QUERY_OPS: tuple[str, ...] = ("setup", "sync", "load", "model")
+QUERY_OPS: tuple[str, ...] = ("setup", "sync", "load", "model", "model_file")
 
 SOCKET_KEY = "frl-vehicle-socket"
 AUTHKEY_KEY = "frl-vehicle-key"
 PARTITION_KEY = "partition-id"
+NUM_PARTITIONS_KEY = "num-partitions"
 RUN_DIR_KEY = "run-dir"
+
+
+_ANSI_CODE = re.compile(r"\x1b\[[0-9;]*m")
+_FLOWER_MARKER = "occurred. Message:"
+
+
+def error_text(reason: str) -> str:
+    """What a ClientApp's exception said, without Flower's wrapping of it:
+    ``<class 'X'>:<'message'>`` (deployment), or a Ray traceback ending in ``Exception
+    ClientAppException occurred. Message: message`` (simulation)."""
+    text = _unwrapped(_ANSI_CODE.sub("", reason).strip())
+    if _FLOWER_MARKER in text:
+        text = text.rsplit(_FLOWER_MARKER, 1)[1].strip()
+    return _unwrapped(text)
+
+
+def _unwrapped(text: str) -> str:
+    if text.startswith("<class ") and ":<'" in text and text.endswith("'>"):
+        return text.split(":<'", 1)[1][:-2].strip()
+    return text
 
 
 def message_type(op: str) -> str:

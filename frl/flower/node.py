@@ -11,7 +11,6 @@ stay under ``--state-dir`` on this host. Ctrl-C or SIGTERM stops both.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import os
 import shutil
@@ -20,10 +19,12 @@ import socket
 import subprocess
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
+from frl.cli import OneLineParser
+from frl.federation.reachability import unreachable_reason
 from frl.federation.workers import stop_processes
 from frl.flower.vehicle import VehicleService
 
@@ -44,6 +45,26 @@ def flower_env(extra: dict[str, str] | None = None) -> dict[str, str]:
     return {**os.environ, "PATH": path, **(extra or {})}
 
 
+_PR_SET_PDEATHSIG = 1
+
+
+def ends_with_this_process(sig: int = signal.SIGTERM) -> Callable[[], None]:
+    """A ``Popen`` ``preexec_fn``: the child gets ``sig`` when this process dies, however
+    it dies (Linux; elsewhere nothing). A SuperLink or SuperNode runs in a session of its
+    own, so without this a killed ``frl.train`` would leave them training on."""
+    parent = os.getpid()
+
+    def arrange() -> None:
+        if sys.platform.startswith("linux"):
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, sig)
+            if os.getppid() != parent:  # the parent died before the request was made
+                os._exit(1)
+
+    return arrange
+
+
 def free_port() -> int:
     """A TCP port on 127.0.0.1 that nothing listens on right now."""
     with socket.socket() as probe:
@@ -51,7 +72,29 @@ def free_port() -> int:
         return int(probe.getsockname()[1])
 
 
-class VehicleNode:
+class StartedProcesses:
+    """Processes started on entering a ``with`` block (:meth:`start`) and stopped on
+    leaving it (:meth:`close`); a start that fails half way stops what it started."""
+
+    def start(self) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        try:
+            self.start()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class VehicleNode(StartedProcesses):
     """One vehicle process and the ``flower-supernode`` that serves it.
 
     Args:
@@ -91,24 +134,13 @@ class VehicleNode:
         self.service = VehicleService(state_dir, num_threads, name=f"frl-vehicle-{partition_id}")
         self.supernode: subprocess.Popen[bytes] | None = None
 
-    def __enter__(self) -> VehicleNode:
-        try:
-            self.start()
-        except BaseException:
-            self.close()
-            raise
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
     def start(self) -> None:
-        from frl.flower.messages import AUTHKEY_KEY, PARTITION_KEY, SOCKET_KEY
+        from frl.flower.messages import AUTHKEY_KEY, NUM_PARTITIONS_KEY, PARTITION_KEY, SOCKET_KEY
 
         self.service.start()
         endpoint = self.service.endpoint
         node_config = (
-            f"{PARTITION_KEY}={self.partition_id} num-partitions={self.num_partitions} "
+            f"{PARTITION_KEY}={self.partition_id} {NUM_PARTITIONS_KEY}={self.num_partitions} "
             f'{SOCKET_KEY}="{endpoint.address}" {AUTHKEY_KEY}="{endpoint.authkey}"'
         )
         home = self.flwr_home or tempfile.mkdtemp(prefix="frl-flwr-node-")
@@ -128,6 +160,7 @@ class VehicleNode:
                 stdout=out,
                 stderr=subprocess.STDOUT if out is not None else None,
                 start_new_session=True,
+                preexec_fn=ends_with_this_process(),
             )
         finally:
             if out is not None:
@@ -146,7 +179,7 @@ class VehicleNode:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = OneLineParser(description=__doc__.splitlines()[0])
     parser.add_argument("--superlink", required=True, help="the SuperLink's host:port")
     parser.add_argument("--partition-id", type=int, required=True, help="this vehicle's index")
     parser.add_argument("--num-partitions", type=int, required=True, help="vehicles in the run")
@@ -155,8 +188,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--insecure", action="store_true", help="no TLS (trusted networks only)")
     parser.add_argument("--clientapp-port", type=int, default=None, help="local ClientApp API port")
     args = parser.parse_args(argv)
+    if args.num_partitions < 1:
+        parser.error(f"--num-partitions must be at least 1, got {args.num_partitions}")
     if not 0 <= args.partition_id < args.num_partitions:
-        parser.error("--partition-id must be in [0, --num-partitions)")
+        parser.error(
+            f"--partition-id {args.partition_id} is not in [0, --num-partitions "
+            f"{args.num_partitions})"
+        )
+    why = unreachable_reason(args.superlink)
+    if why is not None:  # before the vehicle process starts, so nothing is left behind
+        parser.error(f"--superlink {args.superlink}: nothing answers there ({why})")
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     node = VehicleNode(
         args.superlink,

@@ -9,21 +9,27 @@ the process group at the N-th time a process reaches POINT:
   (mid-checkpoint-write: the round's directory is half written);
 - ``commit``: the roadside unit has written the round's step rewards and is about to
   commit the round in ``state.json``;
-- ``restore``: a resumed vehicle is about to replay its simulation.
+- ``restore``: a resumed vehicle is about to replay its simulation;
+- ``vehicle``: as ``step``, but ``FRL_KILL_AT=vehicle:N:TASK`` kills the process of the
+  vehicle driving TASK alone (a vehicle's host lost, the roadside unit still up).
 """
 
 import os
+import sys
 
 _KILL_AT = os.environ.get("FRL_KILL_AT")
+# Ray's own Python processes (Flower's simulation runtime) run none of these points, and
+# importing frl into each of them slows Ray's start past its timeouts.
+_IN_RAY = "ray" in os.path.normpath(sys.argv[0] if sys.argv else "").split(os.sep)
 
-if _KILL_AT:
+if _KILL_AT and not _IN_RAY:
     import signal
 
     import frl.envs.intersection
     import frl.federation.client
     import frl.run_directory
 
-    _point, _count = _KILL_AT.split(":")
+    _point, _count, *_task = _KILL_AT.split(":")
     _reached = 0
 
     def _counting(function):
@@ -38,6 +44,18 @@ if _KILL_AT:
 
     if _point == "step":
         frl.federation.client.training_step = _counting(frl.federation.client.training_step)
+    elif _point == "vehicle":
+        _step = frl.federation.client.training_step
+
+        def _step_of_one_vehicle(agent, env, obs):
+            global _reached
+            if [env.config.task] == _task:
+                _reached += 1
+                if _reached == int(_count):
+                    os.kill(os.getpid(), signal.SIGKILL)
+            return _step(agent, env, obs)
+
+        frl.federation.client.training_step = _step_of_one_vehicle
     elif _point == "drive":
         frl.federation.client.write_vehicle_snapshot = _counting(
             frl.federation.client.write_vehicle_snapshot
