@@ -98,6 +98,37 @@ def sumo_command(
     ]  # fmt: skip
 
 
+_TRACI_CONNECT_WAIT_S = 0.02
+_TRACI_CONNECT_TIMEOUT_S = 60.0
+
+
+def _start_traci(command: list[str], label: str) -> Any:
+    """``traci.start``, without its one-second wait before SUMO's first answer: start SUMO
+    on a free port and connect as soon as it listens. A restore over TraCI pays a start."""
+    import contextlib
+    import io
+    import subprocess
+
+    import traci
+
+    for _ in range(3):  # another process may take the free port first, as traci.start allows
+        port = traci.getFreeSocketPort()
+        process = subprocess.Popen([*command, "--remote-port", str(port)])
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):  # traci prints every retry
+                traci.connect(
+                    port,
+                    numRetries=int(_TRACI_CONNECT_TIMEOUT_S / _TRACI_CONNECT_WAIT_S),
+                    proc=process,
+                    waitBetweenRetries=_TRACI_CONNECT_WAIT_S,
+                    label=label,
+                )
+        except traci.TraCIException:  # SUMO exited: the port was taken
+            continue
+        return traci.getConnection(label)
+    raise SumoError(f"SUMO did not accept a TraCI connection: {' '.join(command)}")
+
+
 class SumoSimulation:
     """A running SUMO of the intersection: start, step, read vehicles, steer the ego."""
 
@@ -135,11 +166,8 @@ class SumoSimulation:
             self._api = libsumo
             _libsumo_owner = self
         else:
-            import traci
-
             label = f"frl-{os.getpid()}-{next(_traci_labels)}"
-            self._guard(lambda: traci.start(command, label=label))
-            self._api = traci.getConnection(label)
+            self._api = self._guard(lambda: _start_traci(command, label))
             self._label = label
         self._guard(self._subscribe)
 
