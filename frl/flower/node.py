@@ -179,7 +179,7 @@ class VehicleNode(StartedProcesses):
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = OneLineParser(description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="python -m frl.flower.node", description=__doc__.splitlines()[0])
     parser.add_argument("--superlink", required=True, help="the SuperLink's host:port")
     parser.add_argument("--partition-id", type=int, required=True, help="this vehicle's index")
     parser.add_argument("--num-partitions", type=int, required=True, help="vehicles in the run")
