@@ -18,7 +18,6 @@ from train_helpers import compose_config, load_script
 pytest.importorskip("flwr")
 
 from frl.federation import ClientFailure
-from frl.flower.launch import TOKEN_VAR
 from frl.train import train
 from frl.train_config import ConfigError, validate
 
@@ -57,20 +56,6 @@ def _assert_same_run(a: Path, b: Path) -> None:
     table, bit for bit (``scripts/same_run.py``)."""
     _assert_same_model(a, b)
     assert same_run.differences(a, b) == []
-
-
-def _flower_processes_left() -> list[int]:
-    """Processes still carrying the local federation's marker, whatever their token."""
-    left = []
-    needle = f"{TOKEN_VAR}=".encode()
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if any(v.startswith(needle) for v in (entry / "environ").read_bytes().split(b"\0")):
-                    left.append(int(entry.name))
-            except OSError:
-                pass
-    return left
 
 
 @pytest.fixture(scope="module")
@@ -132,9 +117,21 @@ def test_a_sampled_fleet_with_flowers_fedavgm_matches_the_processes_backend(tmp_
 # group of its own (xdist joins a test's group names: "flower-deployment_ray-and-flower").
 @pytest.mark.slow
 @pytest.mark.xdist_group("flower-deployment")
-def test_deployment_on_loopback_matches_and_leaves_no_process(in_process_run, tmp_path):
+def test_deployment_on_loopback_matches_and_leaves_no_process(
+    in_process_run, tmp_path, monkeypatch
+):
     """A SuperLink and three SuperNodes (each with its vehicle process) on 127.0.0.1."""
+    from frl.flower.launch import LocalFederation, processes_with_token
+
     run_dir = tmp_path / "run"
+    tokens = []  # this run's federation: another on the machine is none of its business
+    start = LocalFederation.start
+
+    def recording_start(federation):
+        tokens.append(federation.token)
+        start(federation)
+
+    monkeypatch.setattr(LocalFederation, "start", recording_start)
 
     results = train(
         compose_config(run_dir, [*ROUNDS, *FLOWER, "federation.flower.runtime=deployment"])
@@ -146,7 +143,7 @@ def test_deployment_on_loopback_matches_and_leaves_no_process(in_process_run, tm
     assert logs == [
         "flwr_run.log", "superlink.log", "supernode0.log", "supernode1.log", "supernode2.log"
     ]  # fmt: skip
-    assert _flower_processes_left() == []
+    assert len(tokens) == 1 and processes_with_token(tokens[0]) == []
     assert multiprocessing.active_children() == []
 
 
