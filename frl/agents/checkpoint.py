@@ -28,20 +28,22 @@ class CheckpointError(ValueError):
     """A file is not a readable checkpoint of this format and version."""
 
 
+def _tagged(payload: dict[str, Any]) -> dict[str, Any]:
+    return {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, **payload}
+
+
 def checkpoint_bytes(payload: dict[str, Any]) -> bytes:
     """The bytes :func:`write_checkpoint` writes for ``payload`` (a file sent elsewhere)."""
-    data = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, **payload}
     buffer = io.BytesIO()
-    torch.save(data, buffer)
+    torch.save(_tagged(payload), buffer)
     return buffer.getvalue()
 
 
 def write_checkpoint(payload: dict[str, Any], path: str | os.PathLike[str]) -> None:
     """Save ``payload`` tagged with format and version, atomically: a crash leaves the old
     file or the new one, never a torn one (:func:`frl.fileio.atomic_write`)."""
-    data = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, **payload}
     with atomic_write(path) as f:
-        torch.save(data, f)
+        torch.save(_tagged(payload), f)
 
 
 def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
