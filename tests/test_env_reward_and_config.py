@@ -46,9 +46,23 @@ def test_collision_term():
 
 
 def test_the_cost_is_the_collision_unweighted_whatever_the_reward():
-    crash = cost_terms(signals(collision=True, arrived=True))
-    assert set(crash) == set(COST_TERMS) and crash == {"collision": 1.0}
-    assert cost_terms(signals(moving=True, others_braking=True)) == {"collision": 0.0}
+    crash = cost_terms(signals(collision=True, arrived=True), RewardConfig(lambda_=-3.0))
+    assert set(crash) == set(COST_TERMS)
+    assert crash == {"collision": 1.0, "brake_past_line": 0.0}
+    calm = cost_terms(signals(moving=True, others_braking=True), RewardConfig())
+    assert sum(calm.values()) == 0.0
+
+
+def test_a_brake_past_the_line_costs_only_where_priced():
+    brake = RewardSignals(False, False, False, False, False, braked_past_line=True)
+    assert cost_terms(brake, RewardConfig())["brake_past_line"] == 0.0
+    priced = RewardConfig(brake_past_line_cost=0.1)
+    assert cost_terms(brake, priced) == {"collision": 0.0, "brake_past_line": 0.1}
+    assert sum(reward_terms(brake, priced).values()) == sum(
+        reward_terms(brake, RewardConfig()).values()
+    )  # a cost, not a reward term
+    with pytest.raises(ValueError, match=r"reward\.brake_past_line_cost"):
+        RewardConfig(brake_past_line_cost=-1.0)
 
 
 def test_reference_reward_by_name():

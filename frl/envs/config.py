@@ -230,6 +230,10 @@ class RewardConfig:
     """Humans closer than this (m, front bumpers) to the ego count for ``b`` and ``w``."""
     moving_speed: float = 0.1
     """Speeds at or below this (m/s) count as standing still."""
+    brake_past_line_cost: float = 0.0
+    """Not a reward term: the cost (``info["cost"]``, what a collision budget counts) of
+    each step the ego brakes with its nose past the stop line (:mod:`frl.envs.reward`).
+    0 counts collisions alone."""
 
     def __post_init__(self) -> None:
         _require(
@@ -242,6 +246,7 @@ class RewardConfig:
                 _finite(f"reward.{f.name}", value)
         _require(self.disturbance_radius >= 0, "reward.disturbance_radius must be >= 0")
         _require(self.moving_speed >= 0, "reward.moving_speed must be >= 0")
+        _require(self.brake_past_line_cost >= 0, "reward.brake_past_line_cost must be >= 0")
 
     @classmethod
     def reference(cls) -> RewardConfig:

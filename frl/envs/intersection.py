@@ -14,7 +14,12 @@ import numpy as np
 
 from frl.envs.config import TASKS, EnvConfig, RewardConfig
 from frl.envs.observation import OccupancyGrid
-from frl.envs.reward import RewardSignals, cost_terms, reward_terms
+from frl.envs.reward import (
+    BRAKE_PAST_LINE_DEPTH_M,
+    RewardSignals,
+    cost_terms,
+    reward_terms,
+)
 from frl.envs.scenario import Scenario, build_scenario
 from frl.envs.sumo_backend import BRAKE_LIGHT_BIT, EGO_ID, SumoSimulation, VehicleState
 
@@ -303,6 +308,7 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         scenario = self.config.scenario
         speed = self._ego_speed + acceleration * scenario.step_length
         speed = min(max(speed, 0.0), scenario.speed_limit)
+        past_line = -BRAKE_PAST_LINE_DEPTH_M < self.stop_line_distance_m < 0
         events = self._advance(speed)
         self._steps += 1
         self._vehicles = vehicles = self._simulation.vehicles()
@@ -327,10 +333,11 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
             others_waiting=waiting,
             collision=collision,
             arrived=arrived,
+            braked_past_line=past_line and acceleration < 0,
         )
         terms = reward_terms(signals, self.reward_config)
         reward = float(sum(terms.values()))
-        costs = cost_terms(signals)
+        costs = cost_terms(signals, self.reward_config)
         terminated = collision or arrived or ego is None
         truncated = not terminated and self._steps >= self.config.max_episode_steps
         self._done = terminated or truncated

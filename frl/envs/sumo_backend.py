@@ -8,8 +8,10 @@ libsumo simulation while one is open. TraCI, needed for sumo-gui, has no such li
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -105,7 +107,6 @@ _TRACI_CONNECT_TIMEOUT_S = 60.0
 def _start_traci(command: list[str], label: str) -> Any:
     """``traci.start``, without its one-second wait before SUMO's first answer: start SUMO
     on a free port and connect as soon as it listens. A restore over TraCI pays a start."""
-    import contextlib
     import io
     import subprocess
 
@@ -127,6 +128,10 @@ def _start_traci(command: list[str], label: str) -> Any:
             continue
         return traci.getConnection(label)
     raise SumoError(f"SUMO did not accept a TraCI connection: {' '.join(command)}")
+
+
+def _hold_back() -> None:
+    """In place of traci's ``Connection._sendExact``: leave the command queued."""
 
 
 class SumoSimulation:
@@ -199,9 +204,10 @@ class SumoSimulation:
         self._guard(simulation.step)
         events = simulation.getSubscriptionResults()
         departed = tuple(events[_VAR_DEPARTED_IDS])
-        for vehicle_id in departed:
-            if vehicle_id != EGO_ID:
-                api.vehicle.setSpeedMode(vehicle_id, HUMAN_SPEED_MODE)
+        with self._sent_with_next_command():
+            for vehicle_id in departed:
+                if vehicle_id != EGO_ID:
+                    api.vehicle.setSpeedMode(vehicle_id, HUMAN_SPEED_MODE)
         return StepEvents(
             ego_collided=EGO_ID in events[_VAR_COLLIDING_IDS],
             ego_arrived=EGO_ID in events[_VAR_ARRIVED_IDS],
@@ -252,7 +258,26 @@ class SumoSimulation:
         self._api.vehicle.setSpeedMode(EGO_ID, EGO_SPEED_MODE)
 
     def set_ego_speed(self, speed: float) -> None:
-        self._api.vehicle.setSpeed(EGO_ID, speed)
+        with self._sent_with_next_command():
+            self._api.vehicle.setSpeed(EGO_ID, speed)
+
+    @contextlib.contextmanager
+    def _sent_with_next_command(self) -> Iterator[None]:
+        """Over TraCI, the set commands issued inside travel with the next command, in one
+        message: the protocol takes many commands a message, but traci's client sends each
+        alone and waits for its answer. A step and the commands before it are then one
+        round trip, the same commands in the same order. Set commands only: their answer
+        is a bare status, which traci reads in turn when the message goes out, so an error
+        in one surfaces at the next command."""
+        connection = self._api
+        if self._backend != "traci":
+            yield
+            return
+        connection._sendExact = _hold_back  # an instance attribute shadows the method
+        try:
+            yield
+        finally:
+            del connection._sendExact
 
     def close(self) -> None:
         """Stop SUMO. Safe to call any number of times."""
