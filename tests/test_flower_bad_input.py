@@ -62,30 +62,54 @@ def test_flowers_wrapping_of_a_client_error_is_taken_off(reason):
     assert error_text("plain words") == "plain words"
 
 
-class _Grid:
-    """A Flower grid whose nodes answer ``query.setup`` as given: a partition or an error."""
+SUPERLINK_NODE_ID = 1
+"""The node id Flower's SuperLink sends its own error replies from."""
+NODE_UNAVAILABLE = "Error: Node Unavailable - The destination node failed to report a heartbeat"
 
-    def __init__(self, answers: dict[int, int | str]) -> None:
+
+class _Grid:
+    """A Flower grid whose nodes answer ``query.setup`` as given (a partition or an error)
+    and every other request with an empty reply; for a node in ``gone`` (its SuperNode
+    killed) the SuperLink answers instead, as Flower does."""
+
+    def __init__(self, answers: dict[int, int | str], gone: frozenset[int] = frozenset()) -> None:
         self.answers = answers
+        self.gone = gone
 
     def get_node_ids(self) -> list[int]:
         return list(self.answers)
 
-    def send_and_receive(self, messages, timeout=None):
+    def push_messages(self, messages):
+        self.pushed = list(messages)
+        for number, message in enumerate(self.pushed):
+            message.metadata.__dict__["_message_id"] = f"request-{number}"  # as Flower does
+        return [message.metadata.message_id for message in self.pushed]
+
+    def pull_messages(self, message_ids):
         replies = []
-        for message in messages:
+        for message in self.pushed:
+            if message.metadata.message_id not in message_ids:
+                continue
             node_id = message.metadata.dst_node_id
-            answer = self.answers[node_id]
+            if message.metadata.message_type == "query.setup":
+                answer = self.answers[node_id]
+            else:
+                answer = NODE_UNAVAILABLE if node_id in self.gone else {}
             error = isinstance(answer, str)
             replies.append(
                 SimpleNamespace(
-                    metadata=SimpleNamespace(src_node_id=node_id),
+                    metadata=SimpleNamespace(
+                        src_node_id=SUPERLINK_NODE_ID if node_id in self.gone else node_id,
+                        reply_to_message_id=message.metadata.message_id,
+                    ),
                     has_error=lambda error=error: error,
                     error=SimpleNamespace(reason=answer if error else ""),
-                    content=request_content({} if error else {PARTITION_KEY: answer}),
+                    content=request_content(
+                        {} if error or isinstance(answer, dict) else {PARTITION_KEY: answer}
+                    ),
                 )
             )
-        return replies
+        return replies[::-1]  # in no particular order
 
 
 @pytest.fixture
@@ -97,9 +121,20 @@ def in_a_server_app(monkeypatch):
         monkeypatch.setattr(TaskIdentity, identity, 1)
 
 
-def _pool(answers: dict[int, int | str], tmp_path) -> FlowerClientPool:
+def _pool(answers: dict[int, int | str], tmp_path, **options) -> FlowerClientPool:
     specs = [tiny_spec(i, task) for i, task in enumerate(TASKS)]
-    return FlowerClientPool(_Grid(answers), specs, tmp_path, "run", connect_timeout_s=1)
+    grid = _Grid(answers, options.pop("gone", frozenset()))
+    return FlowerClientPool(grid, specs, tmp_path, "run", connect_timeout_s=1, **options)
+
+
+def test_a_supernode_gone_mid_run_is_named_by_its_vehicle(in_a_server_app, tmp_path):
+    """The SuperLink answers for a SuperNode that missed its heartbeats, from its own id:
+    the failure still names the vehicle the request was for."""
+    answers = {21: 2, 22: 0, 23: 1}  # partitions in another order than the node ids
+    pool = _pool(answers, tmp_path, gone=frozenset({23}), accept_failures=False)
+    pool.connect()
+    with pytest.raises(ClientFailure, match=r"client1_straight failed: Error: Node Unavailable"):
+        pool.get_model(1)
 
 
 def test_a_supernode_of_another_fleet_stops_the_run_before_any_round(in_a_server_app, tmp_path):

@@ -52,6 +52,9 @@ from frl.run_directory import relative_path
 log = logging.getLogger("frl.flower")
 
 POLL_S = 0.2
+REPLY_POLL_S = 0.02
+"""Seconds between pulls for the replies of an exchange: each costs the SuperLink one
+small request, and a vehicle's answer waits at most this long to be seen."""
 
 
 class FlowerClientPool:
@@ -125,8 +128,8 @@ class FlowerClientPool:
             for node in node_ids
         ]
         by_partition: dict[int, int] = {}
-        for reply in self.grid.send_and_receive(messages, timeout=self.timeout_s):
-            node = reply.metadata.src_node_id
+        for position, reply in self._send_and_receive(messages):
+            node = node_ids[position]
             if reply.has_error():  # a node of another fleet: no round can be right
                 raise ClientFailure(
                     "(all)",
@@ -167,12 +170,12 @@ class FlowerClientPool:
             )
             for index, header in headers.items()
         ]
-        by_node = {self._nodes[index]: index for index in headers}
+        indices = list(headers)
         began = time.perf_counter()
         replies: dict[int, Message] = {}
         failures: dict[int, str] = {}
-        for reply in self.grid.send_and_receive(messages, timeout=self.timeout_s):
-            index = by_node[reply.metadata.src_node_id]
+        for position, reply in self._send_and_receive(messages):
+            index = indices[position]
             if reply.has_error():
                 failures[index] = error_text(reply.error.reason)
             else:
@@ -184,6 +187,28 @@ class FlowerClientPool:
         if failures:
             self._handle_failures(op, failures)
         return replies
+
+    def _send_and_receive(self, messages: Sequence[Message]) -> list[tuple[int, Message]]:
+        """Send ``messages`` and wait; each reply with the position of the request it
+        answers, in the requests' order whatever the order of arrival. Matched by request,
+        not by sender: for a SuperNode that stopped answering (its heartbeats missed), the
+        SuperLink replies itself, an error from its own node id. Pushing gave each request
+        its id."""
+        # Pushed and pulled here rather than by Grid.send_and_receive, which over a
+        # SuperLink waits 3 s between pulls: most of a short round's time.
+        waiting = {message_id for message_id in self.grid.push_messages(messages) if message_id}
+        position = {message.metadata.message_id: i for i, message in enumerate(messages)}
+        deadline = None if self.timeout_s is None else time.monotonic() + self.timeout_s
+        answered: list[tuple[int, Message]] = []
+        while waiting:
+            for reply in self.grid.pull_messages(waiting):
+                waiting.discard(reply.metadata.reply_to_message_id)
+                answered.append((position[reply.metadata.reply_to_message_id], reply))
+            if waiting and deadline is not None and time.monotonic() > deadline:
+                break
+            if waiting:
+                time.sleep(REPLY_POLL_S)
+        return sorted(answered, key=lambda answer: answer[0])
 
     def _handle_failures(self, op: str, failures: Mapping[int, str]) -> None:
         names = {spec.index: spec.name for spec in self.specs}
