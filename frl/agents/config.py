@@ -153,7 +153,7 @@ class DDPGConfig:
     """Weight of the imitation term in the actor's loss, the squared distance between the
     actor's action and the teacher's on every sampled state (DDPG from demonstrations,
     Nair et al. 2018, with the teacher asked on the learner's own states as DAgger does,
-    and no Q-filter: filtered terms tested lower); 0: no term."""
+    and no Q-filter: docs/studies.md, "What each lever bought"); 0: no term."""
     sparse_input: bool | str = "auto"
     """First layers gather only non-zero inputs: True, False, or ``"auto"`` (large obs only)."""
     sparse_min_features: int = 256
