@@ -180,6 +180,7 @@ def _server_state(run_dir: Path, completed_rounds: int) -> dict:
     )
 
 
+@pytest.mark.slow
 def test_a_sampled_fleet_with_a_server_optimiser_resumes_exactly(tmp_path):
     """The roadside unit's global model and Adam moments, and the draws, survive a kill.
 

@@ -25,7 +25,7 @@ from frl.train_config import ConfigError, validate
 
 # One xdist worker runs this module and test_launchers.py: both start local Ray clusters
 # (but for the deployment test below).
-pytestmark = pytest.mark.xdist_group("ray-and-flower")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ray-and-flower")]
 
 same_run = load_script("same_run")
 

@@ -24,6 +24,8 @@ from frl.train import train
 ROOT = Path(__file__).resolve().parents[1]
 KILL_POINTS = Path(__file__).resolve().parent / "kill_points"
 
+pytestmark = pytest.mark.slow
+
 same_run = load_script("same_run")
 
 # 4 rounds of 80 environment steps per vehicle, episodes of at most 50 steps: most

@@ -19,7 +19,7 @@ from frl.train import override_error
 from frl.train_config import register_configs
 
 # One xdist worker runs this module and test_flower_backend.py: both start local Ray clusters.
-pytestmark = pytest.mark.xdist_group("ray-and-flower")
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ray-and-flower")]
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -54,7 +54,6 @@ def test_a_sweep_for_a_launcher_leaves_cores_and_device_to_the_machines_that_run
     assert "interval" in override_error(["-m", "hydra/launcher=ray", "interval=abc"])
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(
     ("launcher", "plugin"),
     [

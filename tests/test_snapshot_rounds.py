@@ -6,6 +6,8 @@ from train_helpers import compose_config, load_script
 from frl.train import train
 
 snapshot_rounds = load_script("snapshot_rounds")
+pytestmark = pytest.mark.slow
+
 same_run = load_script("same_run")
 
 OVERRIDES = ["federation=fedavg", "federation.tasks=[left,right]", "cores=1"]
