@@ -291,6 +291,12 @@ class EnvConfig:
     and the distance along the route (negative past the line). Before the junction the
     grid looks the same for every task, where a car in the far lane matters going
     straight or left and not turning right; off (the paper's observation): the grid alone."""
+    commit_at_line: bool = False
+    """A shield against waiting inside the junction: once the ego can no longer stop before
+    the stop line (its braking distance v^2 / 2a reaches the distance left), and until its
+    nose is :data:`~frl.envs.reward.BRAKE_PAST_LINE_DEPTH_M` past the line, it accelerates
+    at full throttle whatever the action, as the committed rule does. Every driver in such
+    an env is shielded, the yardsticks too; off (the paper's env): the action is applied."""
 
     def __post_init__(self) -> None:
         _require(
@@ -314,6 +320,10 @@ class EnvConfig:
         _require(
             isinstance(self.route_observation, bool),
             f"route_observation must be true or false, got {self.route_observation!r}",
+        )
+        _require(
+            isinstance(self.commit_at_line, bool),
+            f"commit_at_line must be true or false, got {self.commit_at_line!r}",
         )
 
     def to_dict(self) -> dict[str, Any]:

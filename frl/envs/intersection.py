@@ -231,6 +231,14 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         paper's grid alone."""
         return self.config.scenario.ego_start_distance - self._travelled
 
+    @property
+    def committed(self) -> bool:
+        """The ego can no longer stop before the stop line and is not yet
+        :data:`BRAKE_PAST_LINE_DEPTH_M` past it: where ``commit_at_line`` takes over."""
+        distance = self.stop_line_distance_m
+        braking_distance = self._ego_speed**2 / (2.0 * self.config.accel_scale)
+        return distance > -BRAKE_PAST_LINE_DEPTH_M and braking_distance >= distance
+
     def route(self) -> np.ndarray:
         """The ego's route now: the task one-hot and the distance to the stop line in units
         of :data:`ROUTE_DISTANCE_SCALE_M` (what ``route_observation`` adds to the grid)."""
@@ -305,6 +313,8 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         if not math.isfinite(acceleration):
             raise ValueError(f"action must be finite, got {action!r}")
         acceleration = min(max(acceleration, -1.0), 1.0) * self.config.accel_scale
+        if self.config.commit_at_line and self.committed:
+            acceleration = self.config.accel_scale
         scenario = self.config.scenario
         speed = self._ego_speed + acceleration * scenario.step_length
         speed = min(max(speed, 0.0), scenario.speed_limit)
