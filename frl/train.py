@@ -26,8 +26,10 @@ from typing import Any
 import yaml
 from omegaconf import DictConfig
 
-from frl.agents.retired import RETIRED_OPTIONS, RetiredOptionError, without_retired
+from frl.agents.retired import RETIRED_OPTIONS
+from frl.envs.config import RETIRED_REWARD_OPTIONS
 from frl.federation.workers import ClientFailure
+from frl.retirement import RetiredOptionError, without_retired
 from frl.run_directory import RunDirectoryError, check_can_make, names_a_run
 from frl.run_opening import open_run
 from frl.train_config import ConfigError, one_line_error, register_configs, validate
@@ -116,9 +118,13 @@ def failure_summary(failure: ClientFailure) -> str:
     )
 
 
+RETIRED_BY_GROUP = {"agent": RETIRED_OPTIONS, "reward": RETIRED_REWARD_OPTIONS}
+"""The retired options of each config group (:mod:`frl.retirement`)."""
+
+
 def without_retired_overrides(argv: list[str]) -> list[str]:
-    """``argv`` less the overrides that set a retired agent option to its off value
-    (:mod:`frl.agents.retired`), which change nothing.
+    """``argv`` less the overrides that set a retired agent or reward option to its off
+    value (:mod:`frl.retirement`), which change nothing.
 
     Raises:
         RetiredOptionError: an override that sets one to any other value.
@@ -126,12 +132,13 @@ def without_retired_overrides(argv: list[str]) -> list[str]:
     kept = []
     for arg in argv:
         key, equals, value = arg.lstrip("+").partition("=")
-        name = key.removeprefix("agent.")
-        if not equals or name == key or name not in RETIRED_OPTIONS:
+        group, _, name = key.partition(".")
+        retired = RETIRED_BY_GROUP.get(group, {})
+        if not equals or name not in retired:
             kept.append(arg)
             continue
         parsed = yaml.safe_load(value) if value else None
-        without_retired({name: parsed})  # raises unless it is the off value
+        without_retired({name: parsed}, retired, group)  # raises unless it is the off value
     return kept
 
 

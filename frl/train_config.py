@@ -284,16 +284,11 @@ def validate(
         strategy = StrategySpec(federation["strategy"], dict(federation["strategy_params"]))
         env_config = EnvConfig.from_dict(data["env"])
         vehicle_envs = _vehicle_envs(env_config, plan.fleet_size, federation)
-        reward_config = RewardConfig(**reward)
+        reward_config = RewardConfig.from_dict(reward)
         agent_config = DDPGConfig.from_dict(agent)
         check_teacher(agent_config.guide, env_config.route_observation)
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
-    if reward_config.brake_past_line_cost > 0 and agent_config.collision_budget is None:
-        raise ConfigError(
-            f"reward.brake_past_line_cost={reward_config.brake_past_line_cost:g} is a cost "
-            "only a collision budget counts; set agent.collision_budget (or budget=data)"
-        )
     if plan.aggregates and strategy.needs_global_model and not plan.shares_initial_model:
         raise ConfigError(
             f"federation.strategy={strategy.name} steps from one global model; it needs "

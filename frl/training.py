@@ -115,12 +115,6 @@ def train(
             "and a Lagrange multiplier per vehicle; agent.collision_budget=null: none)",
             settings.agent.collision_budget,
         )
-        if settings.reward.brake_past_line_cost > 0:
-            log.info(
-                "the budget counts cost, not collisions alone: each step braking past the stop "
-                "line costs %g (reward.brake_past_line_cost)",
-                settings.reward.brake_past_line_cost,
-            )
 
     run_dir.mkdir(parents=True, exist_ok=True)
     OmegaConf.save(OmegaConf.create(to_save), run_dir / rundir.CONFIG_FILE)

@@ -30,8 +30,7 @@ import torch
 from frl import run_directory as rundir
 from frl.agents import DDPG, SparseRows
 from frl.envs import IntersectionEnv
-from frl.envs.intersection import ROUTE_DISTANCE_SCALE_M
-from frl.envs.reward import BRAKE_PAST_LINE_DEPTH_M
+from frl.envs.intersection import JUNCTION_DEPTH_M, ROUTE_DISTANCE_SCALE_M
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
@@ -48,7 +47,7 @@ def drive(env: IntersectionEnv, policy, seeds: list[int]) -> dict[str, float]:  
         while True:
             before = env.stop_line_distance_m
             action = float(np.asarray(policy(observation)).reshape(-1)[0])
-            if action < 0 and -BRAKE_PAST_LINE_DEPTH_M < before < 0:
+            if action < 0 and -JUNCTION_DEPTH_M < before < 0:
                 waited = True
             observation, _, terminated, truncated, info = env.step([action])
             if not crossed and env.stop_line_distance_m <= 0 < before:

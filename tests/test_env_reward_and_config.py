@@ -6,6 +6,7 @@ import pytest
 
 from frl.envs.config import EnvConfig, GridConfig, RewardConfig, ScenarioConfig
 from frl.envs.reward import COST_TERMS, REWARD_TERMS, RewardSignals, cost_terms, reward_terms
+from frl.retirement import RetiredOptionError
 
 
 def signals(**kwargs):
@@ -48,21 +49,30 @@ def test_collision_term():
 def test_the_cost_is_the_collision_unweighted_whatever_the_reward():
     crash = cost_terms(signals(collision=True, arrived=True), RewardConfig(lambda_=-3.0))
     assert set(crash) == set(COST_TERMS)
-    assert crash == {"collision": 1.0, "brake_past_line": 0.0}
+    assert crash == {"collision": 1.0}
     calm = cost_terms(signals(moving=True, others_braking=True), RewardConfig())
     assert sum(calm.values()) == 0.0
 
 
-def test_a_brake_past_the_line_costs_only_where_priced():
-    brake = RewardSignals(False, False, False, False, False, braked_past_line=True)
-    assert cost_terms(brake, RewardConfig())["brake_past_line"] == 0.0
-    priced = RewardConfig(brake_past_line_cost=0.1)
-    assert cost_terms(brake, priced) == {"collision": 0.0, "brake_past_line": 0.1}
-    assert sum(reward_terms(brake, priced).values()) == sum(
-        reward_terms(brake, RewardConfig()).values()
-    )  # a cost, not a reward term
-    with pytest.raises(ValueError, match=r"reward\.brake_past_line_cost"):
-        RewardConfig(brake_past_line_cost=-1.0)
+def test_a_retired_reward_option_loads_off_and_is_refused_on():
+    """Runs saved with the priced brake past the line still read at 0; on, one line."""
+    saved = {**dataclasses.asdict(RewardConfig()), "brake_past_line_cost": 0.0}
+    assert RewardConfig.from_dict(saved) == RewardConfig()
+    with pytest.raises(
+        RetiredOptionError,
+        match=r"^reward\.brake_past_line_cost=0\.1 was retired: "
+        r"docs/studies\.md, \"Where the car stands",
+    ):
+        RewardConfig.from_dict({**saved, "brake_past_line_cost": 0.1})
+    with pytest.raises(TypeError, match="unknown_weight"):
+        RewardConfig.from_dict({"unknown_weight": 1.0})
+
+
+def test_a_retired_reward_override_at_off_is_dropped_from_the_command_line():
+    from frl.train import without_retired_overrides
+
+    argv = ["reward.brake_past_line_cost=0", "seed=1", "reward.alpha=-0.01"]
+    assert without_retired_overrides(argv) == ["seed=1", "reward.alpha=-0.01"]
 
 
 def test_reference_reward_by_name():

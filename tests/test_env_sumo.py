@@ -6,7 +6,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from frl.envs import ENV_ID, IntersectionEnv, RewardConfig, SumoError
-from frl.envs.reward import BRAKE_PAST_LINE_DEPTH_M, REWARD_TERMS
+from frl.envs.intersection import JUNCTION_DEPTH_M
+from frl.envs.reward import REWARD_TERMS
 
 FULL_THROTTLE = np.array([1.0], dtype=np.float32)
 FULL_BRAKE = np.array([-1.0], dtype=np.float32)
@@ -97,31 +98,6 @@ def test_traci_drives_and_restores_exactly_as_libsumo(make_env):
     assert drive(restored, actions[200:]) == drive(fast, actions[200:])
 
 
-def test_a_priced_brake_costs_past_the_stop_line_only(make_env):
-    """Creep to the line at full throttle for a few steps, then brake: every brake with
-    the nose past the line (and within its first metres) costs, none before it."""
-    env = make_env(task="left", reward=RewardConfig(brake_past_line_cost=0.25))
-    env.reset(seed=2)
-    before_line = past_line = 0
-    speed = 0.0
-    while env.stop_line_distance_m > -5.0:
-        distance = env.stop_line_distance_m
-        action = FULL_BRAKE if distance < 0 or speed > 3.0 else FULL_THROTTLE
-        *_, terminated, truncated, info = env.step(action)
-        speed = info["ego_speed"]
-        braked = action[0] < 0
-        cost = info["cost_terms"]["brake_past_line"]
-        if braked and distance < 0:
-            past_line += 1
-            assert cost == 0.25
-        else:
-            before_line += braked
-            assert cost == 0.0
-        if terminated or truncated or past_line >= 3:
-            break
-    assert before_line > 0 and past_line == 3
-
-
 def _brake_once_committed(env, seed):
     """Full throttle until the car can no longer stop before the line, then full brake;
     the speeds while its nose is within the junction's first metres."""
@@ -131,9 +107,9 @@ def _brake_once_committed(env, seed):
     for _ in range(env.config.max_episode_steps):
         braking = braking or env.committed
         *_, terminated, truncated, info = env.step(FULL_BRAKE if braking else FULL_THROTTLE)
-        if braking and -BRAKE_PAST_LINE_DEPTH_M < env.stop_line_distance_m:
+        if braking and env.stop_line_distance_m > -JUNCTION_DEPTH_M:
             speeds.append(info["ego_speed"])
-        if terminated or truncated or env.stop_line_distance_m <= -BRAKE_PAST_LINE_DEPTH_M:
+        if terminated or truncated or env.stop_line_distance_m <= -JUNCTION_DEPTH_M:
             return speeds, env.stop_line_distance_m
     return speeds, env.stop_line_distance_m
 
@@ -145,9 +121,9 @@ def test_commit_at_line_keeps_a_braking_car_going_through_the_junction(make_env)
     shielded, shielded_end = _brake_once_committed(env, 2)
     env.close()  # libsumo: one simulation per process
     assert len(shielded) > 1 and shielded == sorted(shielded) and shielded[-1] > shielded[0]
-    assert shielded_end <= -BRAKE_PAST_LINE_DEPTH_M
+    assert shielded_end <= -JUNCTION_DEPTH_M
     plain, plain_end = _brake_once_committed(make_env(task="left"), 2)
-    assert plain[-1] < plain[0] and plain_end > -BRAKE_PAST_LINE_DEPTH_M
+    assert plain[-1] < plain[0] and plain_end > -JUNCTION_DEPTH_M
 
 
 def test_always_braking_agent_never_collides_and_is_truncated(make_env):

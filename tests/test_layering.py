@@ -22,7 +22,7 @@ import frl
 PACKAGE_DIR = Path(frl.__file__).resolve().parent
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("frl", "frl.fileio", "frl.conf", "frl.cli", "frl.update_count"),
+    ("frl", "frl.fileio", "frl.conf", "frl.cli", "frl.update_count", "frl.retirement"),
     ("frl.run_directory", "frl.envs", "frl.agents"),
     ("frl.episodes", "frl.policies", "frl.recording", "frl.yardsticks", "frl.provenance"),
     ("frl.federation",),

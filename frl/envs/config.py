@@ -11,6 +11,8 @@ import math
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
+from frl.retirement import RetiredOption, without_retired
+
 TASKS: tuple[str, ...] = ("left", "straight", "right")
 """The agent's three routes at the intersection (paper, Section III.A)."""
 
@@ -193,6 +195,14 @@ def traffic_name(scenario: ScenarioConfig) -> str:
     return "custom"
 
 
+RETIRED_REWARD_OPTIONS: dict[str, RetiredOption] = {
+    "brake_past_line_cost": RetiredOption(
+        0.0, '"Where the car stands: the committed rule and the junction in view"', "PENDING"
+    ),
+}
+"""Reward options that frl retired (:mod:`frl.retirement`)."""
+
+
 @dataclass(frozen=True)
 class RewardConfig:
     """Per-step reward r = alpha*t + beta*v + gamma*(b + w) + kappa*u + lambda*c + mu*d.
@@ -230,10 +240,6 @@ class RewardConfig:
     """Humans closer than this (m, front bumpers) to the ego count for ``b`` and ``w``."""
     moving_speed: float = 0.1
     """Speeds at or below this (m/s) count as standing still."""
-    brake_past_line_cost: float = 0.0
-    """Not a reward term: the cost (``info["cost"]``, what a collision budget counts) of
-    each step the ego brakes with its nose past the stop line (:mod:`frl.envs.reward`).
-    0 counts collisions alone."""
 
     def __post_init__(self) -> None:
         _require(
@@ -246,7 +252,16 @@ class RewardConfig:
                 _finite(f"reward.{f.name}", value)
         _require(self.disturbance_radius >= 0, "reward.disturbance_radius must be >= 0")
         _require(self.moving_speed >= 0, "reward.moving_speed must be >= 0")
-        _require(self.brake_past_line_cost >= 0, "reward.brake_past_line_cost must be >= 0")
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RewardConfig:
+        """A :class:`RewardConfig` from plain data (a saved config, a JSON spec); a retired
+        option (:data:`RETIRED_REWARD_OPTIONS`) loads only at its off value.
+
+        Raises:
+            frl.retirement.RetiredOptionError: a retired option at any other value.
+        """
+        return cls(**without_retired(data, RETIRED_REWARD_OPTIONS, "reward"))
 
     @classmethod
     def reference(cls) -> RewardConfig:
@@ -294,7 +309,7 @@ class EnvConfig:
     commit_at_line: bool = False
     """A shield against waiting inside the junction: once the ego can no longer stop before
     the stop line (its braking distance v^2 / 2a reaches the distance left), and until its
-    nose is :data:`~frl.envs.reward.BRAKE_PAST_LINE_DEPTH_M` past the line, it accelerates
+    nose is :data:`~frl.envs.intersection.JUNCTION_DEPTH_M` past the line, it accelerates
     at full throttle whatever the action, as the committed rule does. Every driver in such
     an env is shielded, the yardsticks too; off (the paper's env): the action is applied."""
 

@@ -14,18 +14,17 @@ import numpy as np
 
 from frl.envs.config import TASKS, EnvConfig, RewardConfig
 from frl.envs.observation import OccupancyGrid
-from frl.envs.reward import (
-    BRAKE_PAST_LINE_DEPTH_M,
-    RewardSignals,
-    cost_terms,
-    reward_terms,
-)
+from frl.envs.reward import RewardSignals, cost_terms, reward_terms
 from frl.envs.scenario import Scenario, build_scenario
 from frl.envs.sumo_backend import BRAKE_LIGHT_BIT, EGO_ID, SumoSimulation, VehicleState
 
 _SEED_BOUND = 2**31 - 1
 ROUTE_DISTANCE_SCALE_M = 10.0
 """The route observation's distance to the stop line is in units of this many metres."""
+JUNCTION_DEPTH_M = 15.0
+"""The junction's first metres past the stop line, where a car that waits is in the cross
+traffic's path (the committed rule never brakes there; docs/studies.md, "Where the car
+stands"): where ``commit_at_line`` keeps the car going."""
 
 
 @dataclass(frozen=True)
@@ -234,10 +233,10 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
     @property
     def committed(self) -> bool:
         """The ego can no longer stop before the stop line and is not yet
-        :data:`BRAKE_PAST_LINE_DEPTH_M` past it: where ``commit_at_line`` takes over."""
+        :data:`JUNCTION_DEPTH_M` past it: where ``commit_at_line`` takes over."""
         distance = self.stop_line_distance_m
         braking_distance = self._ego_speed**2 / (2.0 * self.config.accel_scale)
-        return distance > -BRAKE_PAST_LINE_DEPTH_M and braking_distance >= distance
+        return distance > -JUNCTION_DEPTH_M and braking_distance >= distance
 
     def route(self) -> np.ndarray:
         """The ego's route now: the task one-hot and the distance to the stop line in units
@@ -318,7 +317,6 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         scenario = self.config.scenario
         speed = self._ego_speed + acceleration * scenario.step_length
         speed = min(max(speed, 0.0), scenario.speed_limit)
-        past_line = -BRAKE_PAST_LINE_DEPTH_M < self.stop_line_distance_m < 0
         events = self._advance(speed)
         self._steps += 1
         self._vehicles = vehicles = self._simulation.vehicles()
@@ -343,7 +341,6 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
             others_waiting=waiting,
             collision=collision,
             arrived=arrived,
-            braked_past_line=past_line and acceleration < 0,
         )
         terms = reward_terms(signals, self.reward_config)
         reward = float(sum(terms.values()))

@@ -12,14 +12,9 @@ REWARD_TERMS: tuple[str, ...] = (
 )  # fmt: skip
 """Keys of ``info["reward_terms"]``; their values sum to the step's reward."""
 
-COST_TERMS: tuple[str, ...] = ("collision", "brake_past_line")
+COST_TERMS: tuple[str, ...] = ("collision",)
 """Keys of ``info["cost_terms"]``; their values sum to ``info["cost"]``, what a collision
 budget (``agent.collision_budget``) counts and its cost critic learns."""
-
-BRAKE_PAST_LINE_DEPTH_M = 15.0
-"""A brake counts as a brake past the stop line while the ego's nose is past the line by
-less than this (its first metres inside the junction, where the committed rule never
-brakes; docs/studies.md, "Where the car stands")."""
 
 
 @dataclass(frozen=True)
@@ -31,8 +26,6 @@ class RewardSignals:
     others_waiting: bool
     collision: bool
     arrived: bool
-    braked_past_line: bool = False
-    """The ego braked with its nose past the stop line (:data:`BRAKE_PAST_LINE_DEPTH_M`)."""
 
 
 def reward_terms(signals: RewardSignals, config: RewardConfig) -> dict[str, float]:
@@ -50,9 +43,5 @@ def reward_terms(signals: RewardSignals, config: RewardConfig) -> dict[str, floa
 
 def cost_terms(signals: RewardSignals, config: RewardConfig) -> dict[str, float]:
     """Each cost of the step. A collision counts 1: the constraint's units are collisions
-    per episode, not reward. A brake past the stop line counts ``brake_past_line_cost``
-    (0 by default) a step, so that a budget prices waiting inside the junction too."""
-    return {
-        "collision": float(signals.collision),
-        "brake_past_line": config.brake_past_line_cost * signals.braked_past_line,
-    }
+    per episode, not reward. A second cost is one more entry (and one in :data:`COST_TERMS`)."""
+    return {"collision": float(signals.collision)}

@@ -47,7 +47,7 @@ def spec_from_json(text: str) -> ClientSpec:
     data = json.loads(text)
     return ClientSpec(
         env=EnvConfig.from_dict(data.pop("env")),
-        reward=RewardConfig(**data.pop("reward")),
+        reward=RewardConfig.from_dict(data.pop("reward")),
         agent=DDPGConfig.from_dict(data.pop("agent")),
         **data,
     )
