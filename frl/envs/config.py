@@ -197,7 +197,7 @@ def traffic_name(scenario: ScenarioConfig) -> str:
 
 RETIRED_REWARD_OPTIONS: dict[str, RetiredOption] = {
     "brake_past_line_cost": RetiredOption(
-        0.0, '"Where the car stands: the committed rule and the junction in view"', "PENDING"
+        0.0, '"Where the car stands: the committed rule and the junction in view"', "29f9775"
     ),
 }
 """Reward options that frl retired (:mod:`frl.retirement`)."""
