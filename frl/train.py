@@ -27,7 +27,7 @@ import yaml
 from omegaconf import DictConfig
 
 from frl.agents.retired import RETIRED_OPTIONS
-from frl.envs.config import RETIRED_REWARD_OPTIONS
+from frl.envs.config import RETIRED_ENV_OPTIONS, RETIRED_REWARD_OPTIONS
 from frl.federation.workers import ClientFailure
 from frl.retirement import RetiredOptionError, without_retired
 from frl.run_directory import RunDirectoryError, check_can_make, names_a_run
@@ -118,13 +118,17 @@ def failure_summary(failure: ClientFailure) -> str:
     )
 
 
-RETIRED_BY_GROUP = {"agent": RETIRED_OPTIONS, "reward": RETIRED_REWARD_OPTIONS}
+RETIRED_BY_GROUP = {
+    "agent": RETIRED_OPTIONS,
+    "env": RETIRED_ENV_OPTIONS,
+    "reward": RETIRED_REWARD_OPTIONS,
+}
 """The retired options of each config group (:mod:`frl.retirement`)."""
 
 
 def without_retired_overrides(argv: list[str]) -> list[str]:
-    """``argv`` less the overrides that set a retired agent or reward option to its off
-    value (:mod:`frl.retirement`), which change nothing.
+    """``argv`` less the overrides that set a retired agent, env or reward option to its
+    off value (:mod:`frl.retirement`), which change nothing.
 
     Raises:
         RetiredOptionError: an override that sets one to any other value.

@@ -86,6 +86,7 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("budget=paper agent.lagrange_window=10", "lagrange_window tunes the collision budget"),
         ("budget=paper agent.cost_critic=separate", "cost_critic tunes the collision budget"),
         ("reward.brake_past_line_cost=0.1", "reward.brake_past_line_cost=0.1 was retired"),
+        ("env.commit_at_line=true", "env.commit_at_line=True was retired"),
         (
             "agent.budget_noise_free_every=4",
             "agent.budget_noise_free_every=4 was retired: docs/studies.md",

@@ -68,11 +68,19 @@ def test_a_retired_reward_option_loads_off_and_is_refused_on():
         RewardConfig.from_dict({"unknown_weight": 1.0})
 
 
+def test_a_retired_env_option_loads_off_and_is_refused_on():
+    """Runs saved with the shield at the stop line still read with it off; on, one line."""
+    saved = {**EnvConfig().to_dict(), "commit_at_line": False}
+    assert EnvConfig.from_dict(saved) == EnvConfig()
+    with pytest.raises(RetiredOptionError, match=r"^env\.commit_at_line=True was retired: "):
+        EnvConfig.from_dict({**saved, "commit_at_line": True})
+
+
 def test_a_retired_reward_override_at_off_is_dropped_from_the_command_line():
     from frl.train import without_retired_overrides
 
-    argv = ["reward.brake_past_line_cost=0", "seed=1", "reward.alpha=-0.01"]
-    assert without_retired_overrides(argv) == ["seed=1", "reward.alpha=-0.01"]
+    argv = ["reward.brake_past_line_cost=0", "seed=1", "env.commit_at_line=false", "reward.alpha=0"]
+    assert without_retired_overrides(argv) == ["seed=1", "reward.alpha=0"]
 
 
 def test_reference_reward_by_name():

@@ -202,6 +202,13 @@ RETIRED_REWARD_OPTIONS: dict[str, RetiredOption] = {
 }
 """Reward options that frl retired (:mod:`frl.retirement`)."""
 
+RETIRED_ENV_OPTIONS: dict[str, RetiredOption] = {
+    "commit_at_line": RetiredOption(
+        False, '"Where the car stands: the committed rule and the junction in view"', "PENDING"
+    ),
+}
+"""Env options that frl retired (:mod:`frl.retirement`)."""
+
 
 @dataclass(frozen=True)
 class RewardConfig:
@@ -306,12 +313,6 @@ class EnvConfig:
     and the distance along the route (negative past the line). Before the junction the
     grid looks the same for every task, where a car in the far lane matters going
     straight or left and not turning right; off (the paper's observation): the grid alone."""
-    commit_at_line: bool = False
-    """A shield against waiting inside the junction: once the ego can no longer stop before
-    the stop line (its braking distance v^2 / 2a reaches the distance left), and until its
-    nose is :data:`~frl.envs.intersection.JUNCTION_DEPTH_M` past the line, it accelerates
-    at full throttle whatever the action, as the committed rule does. Every driver in such
-    an env is shielded, the yardsticks too; off (the paper's env): the action is applied."""
 
     def __post_init__(self) -> None:
         _require(
@@ -336,10 +337,6 @@ class EnvConfig:
             isinstance(self.route_observation, bool),
             f"route_observation must be true or false, got {self.route_observation!r}",
         )
-        _require(
-            isinstance(self.commit_at_line, bool),
-            f"commit_at_line must be true or false, got {self.commit_at_line!r}",
-        )
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (JSON and YAML friendly); :meth:`from_dict` reads it back."""
@@ -350,9 +347,10 @@ class EnvConfig:
         """An :class:`EnvConfig` from nested plain data (a saved config, a JSON spec).
 
         ``scenario`` and ``grid`` are mappings of their fields; ranges may be lists.
-        Unknown keys raise ``TypeError``, bad values ``ValueError``.
+        Unknown keys raise ``TypeError``, bad values ``ValueError``; a retired option
+        (:data:`RETIRED_ENV_OPTIONS`) loads only at its off value.
         """
-        data = dict(data)
+        data = without_retired(data, RETIRED_ENV_OPTIONS, "env")
         scenario = ScenarioConfig(**dict(data.pop("scenario", {})))
         grid_fields = dict(data.pop("grid", {}))
         for name in ("lateral_range", "longitudinal_range"):

@@ -21,10 +21,6 @@ from frl.envs.sumo_backend import BRAKE_LIGHT_BIT, EGO_ID, SumoSimulation, Vehic
 _SEED_BOUND = 2**31 - 1
 ROUTE_DISTANCE_SCALE_M = 10.0
 """The route observation's distance to the stop line is in units of this many metres."""
-JUNCTION_DEPTH_M = 15.0
-"""The junction's first metres past the stop line, where a car that waits is in the cross
-traffic's path (the committed rule never brakes there; docs/studies.md, "Where the car
-stands"): where ``commit_at_line`` keeps the car going."""
 
 
 @dataclass(frozen=True)
@@ -230,14 +226,6 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         paper's grid alone."""
         return self.config.scenario.ego_start_distance - self._travelled
 
-    @property
-    def committed(self) -> bool:
-        """The ego can no longer stop before the stop line and is not yet
-        :data:`JUNCTION_DEPTH_M` past it: where ``commit_at_line`` takes over."""
-        distance = self.stop_line_distance_m
-        braking_distance = self._ego_speed**2 / (2.0 * self.config.accel_scale)
-        return distance > -JUNCTION_DEPTH_M and braking_distance >= distance
-
     def route(self) -> np.ndarray:
         """The ego's route now: the task one-hot and the distance to the stop line in units
         of :data:`ROUTE_DISTANCE_SCALE_M` (what ``route_observation`` adds to the grid)."""
@@ -312,8 +300,6 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         if not math.isfinite(acceleration):
             raise ValueError(f"action must be finite, got {action!r}")
         acceleration = min(max(acceleration, -1.0), 1.0) * self.config.accel_scale
-        if self.config.commit_at_line and self.committed:
-            acceleration = self.config.accel_scale
         scenario = self.config.scenario
         speed = self._ego_speed + acceleration * scenario.step_length
         speed = min(max(speed, 0.0), scenario.speed_limit)
