@@ -204,7 +204,7 @@ RETIRED_REWARD_OPTIONS: dict[str, RetiredOption] = {
 
 RETIRED_ENV_OPTIONS: dict[str, RetiredOption] = {
     "commit_at_line": RetiredOption(
-        False, '"Where the car stands: the committed rule and the junction in view"', "PENDING"
+        False, '"Where the car stands: the committed rule and the junction in view"', "cff1f10"
     ),
 }
 """Env options that frl retired (:mod:`frl.retirement`)."""
