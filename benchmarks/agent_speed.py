@@ -360,7 +360,7 @@ def buffer_megabytes(scenes: RecordedScenes, transitions: int = 100_000) -> tupl
         1,
         np.random.default_rng(0),
         sparse=True,
-        sparse_width=DDPGConfig().sparse_capacity,
+        sparse_width=DDPGConfig().sparse.capacity,
     )
     next_scene = scenes.replay()
     obs = next_scene()[0]
@@ -479,7 +479,7 @@ def main() -> None:
             FrlLearner(f"frl, default agent + {name}", variant, scenes, route, device=device)
         )
     if args.dense:
-        dense = config(**{**TABLE_II, **options, "sparse_input": False})
+        dense = config(**{**TABLE_II, **options, "sparse": {"input": False}})
         learners.append(
             FrlLearner("frl, Table II agent, dense first layer", dense, scenes, device=device)
         )

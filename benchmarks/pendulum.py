@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from frl.agents import DDPG, DDPGConfig
+from frl.agents.config import NoiseConfig
 
 STEPS = 8_000
 THRESHOLD = -400.0
@@ -37,8 +38,7 @@ def pendulum_config(precision: str) -> DDPGConfig:
         tau=0.005,
         actor_lr=1e-3,
         critic_lr=1e-3,
-        noise="gaussian",
-        noise_sigma=0.1,  # normalised units: 0.2 N m on Pendulum's [-2, 2] torque
+        noise=NoiseConfig("gaussian", sigma=0.1),  # normalised: 0.2 N m on [-2, 2] torque
         precision=precision,
     )
 

@@ -26,6 +26,7 @@ from typing import Any
 import yaml
 from omegaconf import DictConfig
 
+from frl.agents.config import GROUPS, flat_key_message
 from frl.agents.retired import RETIRED_OPTIONS
 from frl.envs.config import RETIRED_ENV_OPTIONS, RETIRED_REWARD_OPTIONS
 from frl.federation.workers import ClientFailure
@@ -54,7 +55,7 @@ def main() -> None:
     except RetiredOptionError as error:
         print(f"frl.train: config error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
-    problem = override_error(sys.argv[1:])
+    problem = moved_key_error(sys.argv[1:]) or override_error(sys.argv[1:])
     if problem is not None:
         print(f"frl.train: config error: {problem}", file=sys.stderr)
         raise SystemExit(2)
@@ -144,6 +145,23 @@ def without_retired_overrides(argv: list[str]) -> list[str]:
         parsed = yaml.safe_load(value) if value else None
         without_retired({name: parsed}, retired, group)  # raises unless it is the off value
     return kept
+
+
+def moved_key_error(argv: list[str]) -> str | None:
+    """The one line naming the new form of an agent key that moved into a group
+    (``agent.noise_sigma`` is ``agent.noise.sigma``, ``agent.noise=gaussian`` is
+    ``agent.noise.kind=gaussian``); None if ``argv`` has none."""
+    for arg in argv:
+        key, equals, value = arg.lstrip("+").partition("=")
+        group, _, name = key.partition(".")
+        if not equals or group != "agent":
+            continue
+        if name in GROUPS and value and not value.startswith("{"):
+            return f"agent.{name}={value} is now agent.{name}.kind={value}"
+        moved = flat_key_message(name)
+        if moved is not None:
+            return moved
+    return None
 
 
 def override_error(argv: list[str]) -> str | None:

@@ -28,9 +28,13 @@ from omegaconf.errors import OmegaConfBaseException
 
 from frl.agents import DDPGConfig
 from frl.agents.config import agent_fields_as_run
-from frl.agents.retired import RetiredOptionError
 from frl.envs import EnvConfig, RewardConfig
-from frl.envs.config import REWARD_NAMES, TRAFFIC_PRESETS
+from frl.envs.config import (
+    RETIRED_ENV_OPTIONS,
+    RETIRED_REWARD_OPTIONS,
+    REWARD_NAMES,
+    TRAFFIC_PRESETS,
+)
 from frl.federation.plan import (
     FEDERATION_BACKENDS,
     FLOWER_RUNTIMES,
@@ -41,6 +45,7 @@ from frl.federation.run_settings import FlowerSettings, TrainSettings
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores
 from frl.policies import DEFAULT_YARDSTICKS, YARDSTICKS, check_teacher
+from frl.retirement import RetiredOptionError, without_retired
 from frl.run_directory import read_saved_config
 
 
@@ -564,7 +569,9 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     - The ``agent`` as it ran (:func:`frl.agents.config.agent_fields_as_run`): without
       n-step targets or held warm-up actions where it lacks them, today's default having
       both; retired options at their off values dropped, a run that used one refused in
-      one line.
+      one line; keys that moved into groups (``noise_sigma``: ``noise.sigma``) moved.
+    - Retired env and reward options (:data:`frl.envs.config.RETIRED_ENV_OPTIONS`, ...)
+      likewise: dropped at their off values, refused at any other.
     - No ``config_version`` (format 1): ``interval`` counted environment steps; it becomes
       the updates of those steps (``interval / agent.train_freq``), the same rounds.
     - ``probe``: the counterfactual probe, retired (:data:`PROBE_RETIREMENT`). Saved off
@@ -578,6 +585,13 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
             saved["agent"] = agent_fields_as_run(saved["agent"])
         except RetiredOptionError as error:
             raise ConfigError(str(error)) from None
+    try:  # env and reward options retired as the agent's are
+        if isinstance(saved.get("env"), dict):
+            saved["env"] = without_retired(saved["env"], RETIRED_ENV_OPTIONS, "env")
+        if isinstance(saved.get("reward"), dict):
+            saved["reward"] = without_retired(saved["reward"], RETIRED_REWARD_OPTIONS, "reward")
+    except RetiredOptionError as error:
+        raise ConfigError(str(error)) from None
     env = dict(saved.get("env") or {})
     scenario = dict(env.get("scenario") or {})
     if scenario and "human_speed_dev" not in scenario:

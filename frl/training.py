@@ -360,7 +360,7 @@ def _log_hparams(run_dir: Path, settings: TrainSettings, results: dict[str, Any]
         "batch_size": agent.batch_size,
         "tau": agent.tau,
         "learning_starts": agent.learning_starts,
-        "noise_sigma": agent.noise_sigma,
+        "noise_sigma": agent.noise.sigma,
         "precision": results["agent_precision"]["used"],
     }
     metrics = ["rollout/ep_rew_mean", "train/final_step_reward", "server/bytes_total"]

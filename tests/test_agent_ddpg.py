@@ -139,8 +139,8 @@ def test_no_global_rng_use() -> None:
 
 
 def test_sparse_and_dense_agents_share_initial_parameters_and_policy() -> None:
-    sparse = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "sparse_input": True}))
-    dense = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "sparse_input": False}))
+    sparse = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "sparse": {"input": True}}))
+    dense = DDPG(GRID, ACCEL, DDPGConfig(**{**SMALL.to_dict(), "sparse": {"input": False}}))
     ps, pd = params(sparse), params(dense)
     assert ps.keys() == pd.keys() and all(torch.equal(ps[k], pd[k]) for k in ps)
     obs = grid_obs(np.random.default_rng(5))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from frl.agents.precision import PRECISIONS
@@ -36,7 +36,7 @@ def agent_fields_as_run(data: dict[str, Any]) -> dict[str, Any]:
     :data:`FIELDS_ADDED_LATER` they lack at their old values, retired options
     (:mod:`frl.agents.retired`) at their off values dropped; one at any other value
     raises :class:`frl.agents.retired.RetiredOptionError`. The one place both are read."""
-    as_run = {**FIELDS_ADDED_LATER, **data}
+    as_run = nested_fields({**FIELDS_ADDED_LATER, **data})
     if as_run.get("collision_budget") is not None:
         as_run.setdefault("cost_critic", "separate")  # budgets saved before the cost head
     return without_retired(as_run)
@@ -53,7 +53,8 @@ def _is_int(value: object) -> bool:
 
 POSITIVE_INTS = (
     "buffer_size", "n_step", "batch_size", "train_freq",
-    "sparse_min_features", "sparse_capacity", "encoder_width", "quantiles", "lagrange_window",
+    "sparse.min_features", "sparse.capacity", "encoder_width", "critic.quantiles",
+    "lagrange_window",
 )  # fmt: skip
 _ANY: Callable[[float], bool] = math.isfinite
 RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] = {
@@ -61,26 +62,158 @@ RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] 
     "gamma": (lambda v: v >= 0, lambda v: v <= 1, "lie in [0, 1]"),
     "actor_lr": (lambda v: v > 0, _ANY, "be positive and finite"),
     "critic_lr": (lambda v: v > 0, _ANY, "be positive and finite"),
-    "noise_sigma": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
-    "noise_theta": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
-    "noise_dt": (lambda v: v > 0, _ANY, "be positive and finite"),
+    "noise.sigma": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
+    "noise.theta": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
+    "noise.dt": (lambda v: v > 0, _ANY, "be positive and finite"),
     "warmup_hold_steps": (lambda v: v >= 1, _ANY, "be >= 1 and finite"),
     "guide_weight": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
-    "cvar_alpha": (lambda v: v > 0, lambda v: v <= 1, "lie in (0, 1]"),
+    "critic.cvar_alpha": (lambda v: v > 0, lambda v: v <= 1, "lie in (0, 1]"),
 }
-"""Numeric fields: (lower check, upper check, what the message says). NaN fails both."""
+"""Numeric fields (a group's as ``group.field``): (lower check, upper check, what the
+message says). NaN fails both."""
 CHOICES: dict[str, tuple[object, ...]] = {
-    "noise": NOISE_KINDS,
+    "noise.kind": NOISE_KINDS,
     "actor_update": ACTOR_UPDATES,
     "guide": GUIDES,
     "encoder": ENCODERS,
     "precision": PRECISIONS,
-    "sparse_input": (True, False, "auto"),
-    "critic": CRITICS,
+    "sparse.input": (True, False, "auto"),
+    "critic.kind": CRITICS,
     "cost_critic": COST_CRITICS,
 }
 DEFAULT_LAGRANGE_GAINS: tuple[float, float, float] = (10.0, 0.1, 0.0)
 """The collision budget's PID gains (Kp, Ki, Kd); why these: :mod:`frl.agents.lagrange`."""
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """The exploration noise, in normalised action units (``agent.noise.*``)."""
+
+    kind: str = "ou"
+    """``ou`` (Ornstein-Uhlenbeck, Table II) or ``gaussian``."""
+    sigma: float = 0.3
+    """Noise scale (keras-rl lineage of the paper: 0.3)."""
+    theta: float = 0.15
+    """OU mean-reversion rate (keras-rl lineage and SB3 default: 0.15)."""
+    dt: float = 1e-2
+    """OU time step (keras-rl and SB3 default: 1e-2)."""
+
+    def __post_init__(self) -> None:
+        _check_group(self, "noise")
+        # theta*dt >= 2 makes the discretised OU process oscillate with growing amplitude.
+        _require(
+            self.theta * self.dt < 2, "noise.theta * noise.dt must be < 2 for a stable OU process"
+        )
+
+
+@dataclass(frozen=True)
+class SparseConfig:
+    """Whether the first layers and the buffer read only an observation's non-zeros
+    (``agent.sparse.*``)."""
+
+    input: bool | str = "auto"
+    """True, False, or ``"auto"`` (large observations only)."""
+    min_features: int = 256
+    """``"auto"`` picks the sparse path (network and buffer) for obs with this many features."""
+    capacity: int = 64
+    """Initial non-zeros stored per observation in the compact buffer; grows, never truncates."""
+
+    def __post_init__(self) -> None:
+        _check_group(self, "sparse")
+
+
+@dataclass(frozen=True)
+class CriticConfig:
+    """What the reward critic learns, and what of it the actor climbs (``agent.critic.*``)."""
+
+    kind: str = "expected"
+    """``expected``, the mean return (DDPG), or ``quantile``, ``quantiles`` quantiles of the
+    return (QR-DQN's quantile Huber loss), so that the actor can climb the CVaR of the
+    return at ``cvar_alpha``."""
+    quantiles: int = 32
+    """Quantiles of the return a ``quantile`` critic learns."""
+    cvar_alpha: float = 1.0
+    """The actor climbs the mean of the worst ``cvar_alpha`` share of the return's quantiles
+    (its CVaR); 1: the mean, as DDPG; below 1 needs ``critic.kind=quantile``."""
+
+    def __post_init__(self) -> None:
+        _check_group(self, "critic")
+        if self.kind != "quantile":
+            _require(
+                self.quantiles == CriticConfig.quantiles,
+                "critic.quantiles is the quantile critic's: set critic.kind=quantile too",
+            )
+            _require(
+                self.cvar_alpha == 1,
+                "critic.cvar_alpha below 1 needs the return's quantiles: set critic.kind=quantile",
+            )
+
+
+GROUPS: dict[str, type] = {"noise": NoiseConfig, "sparse": SparseConfig, "critic": CriticConfig}
+"""The nested option groups of :class:`DDPGConfig`, by field name."""
+
+FLAT_KEYS: dict[str, tuple[str, str]] = {
+    "noise_sigma": ("noise", "sigma"),
+    "noise_theta": ("noise", "theta"),
+    "noise_dt": ("noise", "dt"),
+    "sparse_input": ("sparse", "input"),
+    "sparse_min_features": ("sparse", "min_features"),
+    "sparse_capacity": ("sparse", "capacity"),
+    "quantiles": ("critic", "quantiles"),
+    "cvar_alpha": ("critic", "cvar_alpha"),
+}
+"""The keys configs and checkpoints held before the groups, with their place now (a
+plain ``noise`` or ``critic`` value was the group's ``kind``)."""
+
+
+def nested_fields(data: dict[str, Any]) -> dict[str, Any]:
+    """Saved agent settings with their flat keys (:data:`FLAT_KEYS`) moved into groups."""
+    data = dict(data)
+    groups: dict[str, dict[str, Any]] = {}
+    for name in GROUPS:
+        value = data.pop(name, None)
+        if isinstance(value, dict):
+            groups[name] = dict(value)
+        else:
+            groups[name] = {} if value is None else {"kind": value}
+    for key, (group, name) in FLAT_KEYS.items():
+        if key in data:
+            groups[group][name] = data.pop(key)
+    for name, values in groups.items():
+        if values:
+            data[name] = values
+    return data
+
+
+def flat_key_message(key: str) -> str | None:
+    """The one line that names a flat key's new form, or None for any other key."""
+    if key not in FLAT_KEYS:
+        return None
+    group, name = FLAT_KEYS[key]
+    return f"agent.{key} is now agent.{group}.{name}"
+
+
+def _check_group(group: Any, prefix: str) -> None:
+    for f in fields(group):
+        value = getattr(group, f.name)
+        qualified = f"{prefix}.{f.name}"
+        if qualified in POSITIVE_INTS:
+            _require(
+                _is_int(value) and value > 0,
+                f"{qualified} must be a positive integer, got {value!r}",
+            )
+        if qualified in RANGES:
+            low, high, text = RANGES[qualified]
+            number = isinstance(value, (int, float)) and not isinstance(value, bool)
+            _require(
+                number and low(value) and high(value), f"{qualified} must {text}, got {value!r}"
+            )
+        if qualified in CHOICES:
+            choices = CHOICES[qualified]
+            _require(
+                value in choices,
+                f"{qualified} must be one of {', '.join(map(str, choices))}, got {value!r}",
+            )
 
 
 @dataclass(frozen=True)
@@ -117,14 +250,8 @@ class DDPGConfig:
     """Adam learning rate of the critic (Table II)."""
     train_freq: int = 1
     """Environment steps per update (1: one update per step, Table II's SB3)."""
-    noise: str = "ou"
-    """Exploration noise: ``"ou"`` (Ornstein-Uhlenbeck, Table II) or ``"gaussian"``."""
-    noise_sigma: float = 0.3
-    """Noise scale in normalised action units (keras-rl lineage of the paper: 0.3)."""
-    noise_theta: float = 0.15
-    """OU mean-reversion rate (keras-rl lineage and SB3 default: 0.15)."""
-    noise_dt: float = 1e-2
-    """OU time step (keras-rl and SB3 default: 1e-2)."""
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    """The exploration noise (Table II: OU, sigma 0.3)."""
     warmup_hold_steps: float = 20.0
     """Mean steps each uniform warm-up action is held (geometric durations); 1: a new
     action every step (Table II's SB3). Held actions drive long stretches of braking and
@@ -154,12 +281,8 @@ class DDPGConfig:
     actor's action and the teacher's on every sampled state (DDPG from demonstrations,
     Nair et al. 2018, with the teacher asked on the learner's own states as DAgger does,
     and no Q-filter: docs/studies.md, "What each lever bought"); 0: no term."""
-    sparse_input: bool | str = "auto"
-    """First layers gather only non-zero inputs: True, False, or ``"auto"`` (large obs only)."""
-    sparse_min_features: int = 256
-    """``"auto"`` picks the sparse path (network and buffer) for obs with this many features."""
-    sparse_capacity: int = 64
-    """Initial non-zeros stored per observation in the compact buffer; grows, never truncates."""
+    sparse: SparseConfig = field(default_factory=SparseConfig)
+    """Whether the networks and the buffer read the observation's non-zeros alone."""
     encoder: str = "flat"
     """What the MLPs read: ``flat``, the observation itself (Table II's MLP policy), or
     ``vehicles``, a grid observation as the set of vehicles it shows
@@ -189,15 +312,8 @@ class DDPGConfig:
     large as the reward critic, with its own encoder, which doubles the critic's work in
     every update (how the two compare: docs/studies.md, "A cheaper cost critic: the
     head"). A budget saved before this field learned a separate critic, and loads as one."""
-    critic: str = "expected"
-    """What the reward critic learns: ``expected``, the mean return (DDPG), or
-    ``quantile``, ``quantiles`` quantiles of the return (QR-DQN's quantile Huber loss), so
-    that the actor can climb the CVaR of the return at ``cvar_alpha``."""
-    quantiles: int = 32
-    """Quantiles of the return a ``quantile`` critic learns."""
-    cvar_alpha: float = 1.0
-    """The actor climbs the mean of the worst ``cvar_alpha`` share of the return's quantiles
-    (its CVaR); 1: the mean, as DDPG; below 1 needs ``critic=quantile``."""
+    critic: CriticConfig = field(default_factory=CriticConfig)
+    """What the reward critic learns, and what of it the actor climbs."""
 
     def __post_init__(self) -> None:
         hidden = tuple(self.hidden_sizes)
@@ -206,7 +322,7 @@ class DDPGConfig:
             len(hidden) > 0 and all(_is_int(h) and h > 0 for h in hidden),
             f"hidden_sizes must name at least one hidden layer, as positive integers, got {hidden}",
         )
-        for name in POSITIVE_INTS:
+        for name in (name for name in POSITIVE_INTS if "." not in name):
             value = getattr(self, name)
             _require(
                 _is_int(value) and value > 0, f"{name} must be a positive integer, got {value!r}"
@@ -216,10 +332,14 @@ class DDPGConfig:
             f"learning_starts must be a non-negative integer, got {self.learning_starts!r}",
         )
         for name, (low, high, text) in RANGES.items():
+            if "." in name:
+                continue  # a group's, checked by the group
             value = getattr(self, name)
             number = isinstance(value, (int, float)) and not isinstance(value, bool)
             _require(number and low(value) and high(value), f"{name} must {text}, got {value!r}")
         for name, choices in CHOICES.items():
+            if "." in name:
+                continue
             value = getattr(self, name)
             _require(
                 value in choices,
@@ -229,11 +349,13 @@ class DDPGConfig:
             self.batch_size <= self.buffer_size,
             f"batch_size ({self.batch_size}) must not exceed buffer_size ({self.buffer_size})",
         )
-        # theta*dt >= 2 makes the discretised OU process oscillate with growing amplitude.
-        _require(
-            self.noise_theta * self.noise_dt < 2,
-            "noise_theta * noise_dt must be < 2 for a stable OU process",
-        )
+        for name, group in GROUPS.items():
+            if isinstance(getattr(self, name), dict):  # plain data (a preset, to_dict())
+                object.__setattr__(self, name, group(**getattr(self, name)))
+            _require(
+                isinstance(getattr(self, name), group),
+                f"{name} must be a {group.__name__}, got {getattr(self, name)!r}",
+            )
         _require(
             self.guide != "none" or self.guide_weight == 0,
             "guide_weight learns from a teacher: set guide to one of " + ", ".join(GUIDES[1:]),
@@ -262,15 +384,6 @@ class DDPGConfig:
                     getattr(self, name) == getattr(DDPGConfig, name),
                     f"{name} tunes the collision budget: set collision_budget too",
                 )
-        if self.critic != "quantile":
-            _require(
-                self.quantiles == DDPGConfig.quantiles,
-                "quantiles is the quantile critic's: set critic=quantile too",
-            )
-            _require(
-                self.cvar_alpha == 1,
-                "cvar_alpha below 1 needs the return's quantiles: set critic=quantile",
-            )
 
     @property
     def costed(self) -> bool:
@@ -286,9 +399,9 @@ class DDPGConfig:
         """Whether observations of ``num_features`` features reach the networks as
         :class:`frl.agents.SparseRows` (the flat encoder's sparse first layer, or the
         vehicles encoder reading the non-zeros)."""
-        if self.sparse_input == "auto":
-            return num_features >= self.sparse_min_features
-        return bool(self.sparse_input)
+        if self.sparse.input == "auto":
+            return num_features >= self.sparse.min_features
+        return bool(self.sparse.input)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-type dict (lists for tuples), safe for ``torch.load(weights_only=True)``."""

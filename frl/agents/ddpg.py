@@ -51,7 +51,7 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
 
     Args:
         observation_space: any Box, or a Dict of Boxes (:mod:`frl.agents.observations`),
-            flattened. Large ones (``DDPGConfig.sparse_input``) take the sparse path.
+            flattened. Large ones (``DDPGConfig.sparse``) take the sparse path.
         action_space: a Box with finite bounds; the actor works in [-1, 1], noise included.
         config: hyperparameters; ``None`` means the paper's Table II defaults.
         seed: seeds every random stream: network init, noise, replay sampling and warm-up
@@ -107,10 +107,10 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         rng = np.random.default_rng
         self.explorer = Explorer(cfg, self.action_dim, rng(noise_seq), rng(warmup_seq))
         # Compact storage whenever the observation is large, even for a dense network.
-        compact = cfg.sparse_input is True or self.obs_dim >= cfg.sparse_min_features
+        compact = cfg.sparse.input is True or self.obs_dim >= cfg.sparse.min_features
         self.buffer = ReplayBuffer(
             cfg.buffer_size, self.obs_shape, self.action_dim, rng(buffer_seq), sparse=compact,
-            sparse_width=cfg.sparse_capacity, guided=cfg.guided, costed=cfg.costed,
+            sparse_width=cfg.sparse.capacity, guided=cfg.guided, costed=cfg.costed,
         )  # fmt: skip
         self.teacher = Teacher(cfg.guide, self.layout, self.scale) if cfg.guided else None
         self.writer = TransitionWriter(self.buffer, cfg.n_step, cfg.gamma, self.teacher)
@@ -213,7 +213,7 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             q, hidden = nets.critic.values_and_hidden(batch.obs, batch.actions)
         discount = cfg.gamma**batch.horizons if cfg.n_step > 1 else cfg.gamma
         loss, td_error = critic_loss(
-            q, batch.rewards, batch.terminated, next_q, discount, cfg.critic == "quantile"
+            q, batch.rewards, batch.terminated, next_q, discount, cfg.critic.kind == "quantile"
         )
         self._descend(self.critic_optimizer, loss)
         stats = {"critic_loss": loss.detach(), "q_mean": q.detach().mean(), "td_error": td_error}
@@ -258,8 +258,8 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
                 value, hidden = nets.critic.values_and_hidden(obs, action)
             else:
                 value, hidden = nets.critic(obs, action), None
-        if cfg.critic == "quantile":
-            value = lower_tail_mean(value, cfg.cvar_alpha)
+        if cfg.critic.kind == "quantile":
+            value = lower_tail_mean(value, cfg.critic.cvar_alpha)
         if constraint is not None:
             value = constraint.price(value, obs, action, hidden)
         return value

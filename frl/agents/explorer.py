@@ -34,12 +34,12 @@ class Explorer:
         self.config = config
         self.action_dim = action_dim
         self.noise = make_noise(
-            config.noise,
+            config.noise.kind,
             (action_dim,),
             noise_rng,
-            sigma=config.noise_sigma,
-            theta=config.noise_theta,
-            dt=config.noise_dt,
+            sigma=config.noise.sigma,
+            theta=config.noise.theta,
+            dt=config.noise.dt,
         )
         self.warmup_rng = warmup_rng
         self.held_action: np.ndarray | None = None

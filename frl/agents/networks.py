@@ -97,7 +97,7 @@ class Critic(nn.Module):
     The action joins the observation (or the encoder's output) at the first layer
     (``layers.0.extra_weight``), which computes ``Linear(in + action_dim, h0)`` on
     ``cat([x, action])``. With ``outputs`` > 1 it gives that many values per sample:
-    the quantiles of the return (``DDPGConfig.critic=quantile``).
+    the quantiles of the return (``DDPGConfig.critic.kind=quantile``).
     """
 
     def __init__(
@@ -294,7 +294,7 @@ def build_actor_critic(
         return build_network(kind, obs_dim, action_dim, config, layout, generator, device, outputs)
 
     actor = network(Actor)
-    critic = network(Critic, config.quantiles if config.critic == "quantile" else 1)
+    critic = network(Critic, config.critic.quantiles if config.critic.kind == "quantile" else 1)
     cost_critic: Critic | CostHead | None = None
     if config.costed:
         separate = config.cost_critic == "separate"
