@@ -120,8 +120,15 @@ def _schema_field(name: str, kind: Any, value: Any) -> tuple[str, Any, Any]:
 
 EnvSchema = schema_of(EnvConfig, "EnvSchema", exclude=("task",))
 """``task`` is left out: the scheme decides it."""
-AgentSchema = schema_of(DDPGConfig, "AgentSchema", leading=(("name", str, "ddpg"),))
-"""``name``: the algorithm (frl implements ``ddpg``)."""
+AgentSchema = schema_of(
+    DDPGConfig,
+    "AgentSchema",
+    leading=(("name", str, "ddpg"),),
+    trailing=(("collision_budget_by_task", dict[str, float], {}),),
+)
+"""``name``: the algorithm (frl implements ``ddpg``); ``collision_budget_by_task``: each
+task's vehicles' collision budget, in place of ``collision_budget`` (empty: the same for
+every vehicle)."""
 RewardSchema = schema_of(RewardConfig, "RewardSchema")
 FlowerSchema = schema_of(FlowerSettings, "FlowerSchema")
 FederationSchema = schema_of(
@@ -241,6 +248,7 @@ def validate(
         )
     if agent.pop("name") != "ddpg":
         raise ConfigError("unknown agent; frl implements agent=ddpg only")
+    budget_by_task = agent.pop("collision_budget_by_task", None) or None
     if data["seed"] < 0:
         raise ConfigError(f"seed must be a non-negative integer, got {data['seed']!r}")
     if data["eval_episodes"] < 0:
@@ -294,6 +302,7 @@ def validate(
         check_teacher(agent_config.guide, env_config.route_observation)
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
+    budget_by_task = _budget_by_task(budget_by_task, plan, agent_config)
     if plan.aggregates and strategy.needs_global_model and not plan.shares_initial_model:
         raise ConfigError(
             f"federation.strategy={strategy.name} steps from one global model; it needs "
@@ -328,6 +337,7 @@ def validate(
         vehicle_envs=vehicle_envs,
         workers=federation["workers"],
         round_test_episodes=data["round_test_episodes"],
+        collision_budget_by_task=budget_by_task,
     )
 
 
@@ -477,6 +487,34 @@ def _require_flower(runtime: str) -> None:
             "federation.flower.runtime=simulation needs Ray (Flower's simulation engine): "
             "pip install 'frl[flower]'"
         )
+
+
+def _budget_by_task(
+    budgets: dict[str, float] | None, plan: FederationPlan, agent: DDPGConfig
+) -> dict[str, float] | None:
+    """``agent.collision_budget_by_task`` checked: one budget in [0, 1) per task of the
+    fleet, on an agent that has a collision budget, in a scheme whose vehicles have tasks."""
+    if budgets is None:
+        return None
+    key = "agent.collision_budget_by_task"
+    if agent.collision_budget is None:
+        raise ConfigError(
+            f"{key} sets each task's collision budget: set agent.collision_budget too"
+        )
+    if plan.scheme == "central":
+        raise ConfigError(f"{key} needs a vehicle per task; Central-DDPG's drives random tasks")
+    if set(budgets) != set(plan.tasks):
+        raise ConfigError(
+            f"{key} must name each task of the fleet once ({', '.join(plan.tasks)}), "
+            f"got {', '.join(map(str, budgets)) or 'none'}"
+        )
+    for task, budget in budgets.items():
+        number = isinstance(budget, int | float) and not isinstance(budget, bool)
+        if not (number and 0 <= budget < 1):
+            raise ConfigError(
+                f"{key}.{task} must lie in [0, 1) (collisions per episode), got {budget!r}"
+            )
+    return {task: float(budgets[task]) for task in plan.tasks}
 
 
 def _complete(cfg: DictConfig | TrainSchema | dict[str, Any]) -> dict[str, Any]:

@@ -109,7 +109,13 @@ def train(
         "yes" if precision["native_bf16"] else "no",
     )
     log.info("training: %s", schedule_line(settings.plan, settings.agent))
-    if settings.agent.collision_budget is not None:
+    if settings.collision_budget_by_task is not None:
+        log.info(
+            "collision budget by task: %s collisions per training episode (a cost critic and "
+            "a Lagrange multiplier per vehicle; agent.collision_budget_by_task)",
+            ", ".join(f"{task} {b:g}" for task, b in settings.collision_budget_by_task.items()),
+        )
+    elif settings.agent.collision_budget is not None:
         log.info(
             "collision budget: %g collisions per training episode per vehicle (a cost critic "
             "and a Lagrange multiplier per vehicle; agent.collision_budget=null: none)",
@@ -229,13 +235,12 @@ def collision_budget_state(settings: TrainSettings, state: RunState) -> dict[str
     """Each vehicle's collision budget at the end of training (None without a budget):
     its last round's training collision rate, whether that kept the budget, and whether
     its multiplier levelled off (:func:`frl.federation.collision_budget.budget_end_state`)."""
-    budget = settings.agent.collision_budget
-    if budget is None:
+    if settings.agent.collision_budget is None:
         return None
     return {
-        name: budget_end_state(state.budget_rounds[name], budget)
-        for name in (spec.name for spec in client_specs(settings))
-        if state.budget_rounds.get(name)
+        spec.name: budget_end_state(state.budget_rounds[spec.name], spec.agent.collision_budget)
+        for spec in client_specs(settings)
+        if state.budget_rounds.get(spec.name) and spec.agent.collision_budget is not None
     }
 
 

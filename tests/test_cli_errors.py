@@ -91,6 +91,24 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("reward.brake_past_line_cost=0.1", "reward.brake_past_line_cost=0.1 was retired"),
         ("env.commit_at_line=true", "env.commit_at_line=True was retired"),
         (
+            "+agent.collision_budget_by_task={left:0.1,straight:0.02}",
+            "collision_budget_by_task must name each task of the fleet once (left, straight, "
+            "right), got left, straight",
+        ),
+        (
+            "+agent.collision_budget_by_task={left:0.1,straight:0.02,right:1.5}",
+            "agent.collision_budget_by_task.right must lie in [0, 1)",
+        ),
+        (
+            "agent.collision_budget=null "
+            "+agent.collision_budget_by_task={left:0.1,straight:0.1,right:0.1}",
+            "collision_budget_by_task sets each task's collision budget: set agent.collision",
+        ),
+        (
+            "federation=central +agent.collision_budget_by_task={left:0.1,straight:0.1,right:0.1}",
+            "collision_budget_by_task needs a vehicle per task",
+        ),
+        (
             "agent.budget_noise_free_every=4",
             "agent.budget_noise_free_every=4 was retired: docs/studies.md",
         ),

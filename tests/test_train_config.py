@@ -275,3 +275,16 @@ def test_a_saved_interval_that_is_no_whole_number_of_updates_is_refused(tmp_path
 def test_a_config_version_of_another_frl_is_refused():
     with pytest.raises(ConfigError, match="config_version=1 is not this frl's"):
         validate(compose_config(None, ["config_version=1"]))
+
+
+def test_each_task_s_vehicles_get_their_own_collision_budget():
+    budgets = "+agent.collision_budget_by_task={left:0.14,straight:0.08,right:0.02}"
+    overrides = ["federation.vehicles_per_task=2", budgets]
+    specs = client_specs(validate(compose_config(None, overrides)))
+    assert [(s.task, s.agent.collision_budget) for s in specs] == [
+        ("left", 0.14), ("straight", 0.08), ("right", 0.02),
+        ("left", 0.14), ("straight", 0.08), ("right", 0.02),
+    ]  # fmt: skip
+    plain = client_specs(validate(compose_config(None, ["federation.vehicles_per_task=2"])))
+    assert {s.agent.collision_budget for s in plain} == {0.02}
+    assert all(s.agent.hidden_sizes == plain[0].agent.hidden_sizes for s in specs)

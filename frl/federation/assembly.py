@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from frl.agents import DDPGConfig
 from frl.envs import EnvConfig
 from frl.federation.client import ClientSpec
 from frl.federation.plan import client_seeds, initial_model_seed, round_test_seeds
@@ -27,7 +28,7 @@ def client_specs(settings: TrainSettings) -> list[ClientSpec]:
             task=task,
             env=envs[index],
             reward=settings.reward,
-            agent=settings.agent,
+            agent=vehicle_agent(settings, task),
             agent_seed=agent_seed,
             env_seed=env_seed,
             device=settings.device,
@@ -38,6 +39,15 @@ def client_specs(settings: TrainSettings) -> list[ClientSpec]:
             zip(tasks, client_seeds(settings.seed, len(tasks)), strict=True)
         )
     ]
+
+
+def vehicle_agent(settings: TrainSettings, task: str) -> DDPGConfig:
+    """The agent of a vehicle with ``task``: the run's, with its task's collision budget
+    where ``agent.collision_budget_by_task`` sets one."""
+    if settings.collision_budget_by_task is None:
+        return settings.agent
+    budget = settings.collision_budget_by_task[task]
+    return dataclasses.replace(settings.agent, collision_budget=budget)
 
 
 def worker_processes(settings: TrainSettings) -> int:

@@ -4,6 +4,7 @@ builds from a composed config, and the federation builds its objects from
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from frl.agents import DDPGConfig
@@ -53,3 +54,6 @@ class TrainSettings:
     workers: int = 0
     round_test_episodes: int = 0
     """Test episodes per task after every round (the per-round test curve); 0: none."""
+    collision_budget_by_task: Mapping[str, float] | None = None
+    """Each task's vehicles' collision budget (``agent.collision_budget_by_task``); None:
+    every vehicle has ``agent.collision_budget``."""
