@@ -194,7 +194,8 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         ):
             return {}
         slots = self.buffer.sample_slots(cfg.batch_size)
-        stats = self._train_step(self.buffer.gather(slots, self.sparse, self.device))
+        batch = self.buffer.gather(slots, self.sparse, self.device, cfg.encoder == "flat")
+        stats = self._train_step(batch)
         self.num_updates += 1
         losses = {name: value.item() for name, value in stats.items()}
         if self.constraint is not None:

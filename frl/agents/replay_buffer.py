@@ -266,11 +266,14 @@ class ReplayBuffer:
         slots = self.sample_slots(batch_size)
         return self.gather(slots, sparse=sparse, device=device)
 
-    def gather(self, slots: np.ndarray, sparse: bool = False, device: Any = "cpu") -> Batch:
+    def gather(
+        self, slots: np.ndarray, sparse: bool = False, device: Any = "cpu", transposed: bool = True
+    ) -> Batch:
         """The transitions at ``slots`` as a :class:`Batch`. Sparse observations come with
-        their transpose (the networks' weight gradients flow through them); next
-        observations only ever meet the target networks, without gradients."""
-        obs = self._observations(self._obs, slots, sparse, transposed=True)
+        their transpose where ``transposed`` (a sparse first layer's weight gradient flows
+        through it; the vehicles encoder never reads it); next observations only ever meet
+        the target networks, without gradients."""
+        obs = self._observations(self._obs, slots, sparse, transposed=transposed)
         next_obs = self._observations(self._next_obs, slots, sparse)
         batch = Batch(
             obs,
