@@ -99,7 +99,7 @@ class NoiseConfig:
     """OU time step (keras-rl and SB3 default: 1e-2)."""
 
     def __post_init__(self) -> None:
-        _check_group(self, "noise")
+        _check_fields(self, "noise")
         # theta*dt >= 2 makes the discretised OU process oscillate with growing amplitude.
         _require(
             self.theta * self.dt < 2, "noise.theta * noise.dt must be < 2 for a stable OU process"
@@ -119,7 +119,7 @@ class SparseConfig:
     """Initial non-zeros stored per observation in the compact buffer; grows, never truncates."""
 
     def __post_init__(self) -> None:
-        _check_group(self, "sparse")
+        _check_fields(self, "sparse")
 
 
 @dataclass(frozen=True)
@@ -137,7 +137,7 @@ class CriticConfig:
     (its CVaR); 1: the mean, as DDPG; below 1 needs ``critic.kind=quantile``."""
 
     def __post_init__(self) -> None:
-        _check_group(self, "critic")
+        _check_fields(self, "critic")
         if self.kind != "quantile":
             _require(
                 self.quantiles == CriticConfig.quantiles,
@@ -193,10 +193,12 @@ def flat_key_message(key: str) -> str | None:
     return f"agent.{key} is now agent.{group}.{name}"
 
 
-def _check_group(group: Any, prefix: str) -> None:
-    for f in fields(group):
-        value = getattr(group, f.name)
-        qualified = f"{prefix}.{f.name}"
+def _check_fields(config: Any, prefix: str = "") -> None:
+    """Check ``config``'s fields that :data:`POSITIVE_INTS`, :data:`RANGES` and
+    :data:`CHOICES` name (a group's as ``prefix.field``)."""
+    for f in fields(config):
+        value = getattr(config, f.name)
+        qualified = f"{prefix}.{f.name}" if prefix else f.name
         if qualified in POSITIVE_INTS:
             _require(
                 _is_int(value) and value > 0,
@@ -322,29 +324,11 @@ class DDPGConfig:
             len(hidden) > 0 and all(_is_int(h) and h > 0 for h in hidden),
             f"hidden_sizes must name at least one hidden layer, as positive integers, got {hidden}",
         )
-        for name in (name for name in POSITIVE_INTS if "." not in name):
-            value = getattr(self, name)
-            _require(
-                _is_int(value) and value > 0, f"{name} must be a positive integer, got {value!r}"
-            )
+        _check_fields(self)
         _require(
             _is_int(self.learning_starts) and self.learning_starts >= 0,
             f"learning_starts must be a non-negative integer, got {self.learning_starts!r}",
         )
-        for name, (low, high, text) in RANGES.items():
-            if "." in name:
-                continue  # a group's, checked by the group
-            value = getattr(self, name)
-            number = isinstance(value, (int, float)) and not isinstance(value, bool)
-            _require(number and low(value) and high(value), f"{name} must {text}, got {value!r}")
-        for name, choices in CHOICES.items():
-            if "." in name:
-                continue
-            value = getattr(self, name)
-            _require(
-                value in choices,
-                f"{name} must be one of {', '.join(map(str, choices))}, got {value!r}",
-            )
         _require(
             self.batch_size <= self.buffer_size,
             f"batch_size ({self.batch_size}) must not exceed buffer_size ({self.buffer_size})",

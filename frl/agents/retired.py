@@ -6,7 +6,6 @@ from collections.abc import Mapping
 from typing import Any
 
 from frl.retirement import RetiredOption, RetiredOptionError
-from frl.retirement import retired_message as _message
 from frl.retirement import without_retired as _without_retired
 
 RETIRING_COMMIT = "7ff57ca"
@@ -49,11 +48,6 @@ RETIRED_OPTIONS: dict[str, RetiredOption] = {
 
 
 __all__ = ["RETIRED_OPTIONS", "RetiredOption", "RetiredOptionError", "without_retired"]
-
-
-def retired_message(key: str, value: Any) -> str:
-    """The one line that refuses ``agent.key=value``."""
-    return _message("agent", key, RETIRED_OPTIONS[key], value)
 
 
 def without_retired(options: Mapping[str, Any]) -> dict[str, Any]:
