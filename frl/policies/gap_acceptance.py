@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
 from frl.envs.config import EnvConfig
+from frl.envs.conflicts import CrossingReader, CrossingWindow
 from frl.envs.intersection import ROUTE_DISTANCE_SCALE_M
 
 
@@ -37,70 +37,32 @@ class GapAcceptancePolicy:
         path_half_width_m: float = 2.5,
         lane_half_width_m: float = 2.5,
     ) -> None:
-        env = env or EnvConfig()
-        grid = env.grid
         self.margin_s = margin_s
-        self.path_half_width_m = path_half_width_m
-        self.lane_half_width_m = lane_half_width_m
-        self._acceleration = env.accel_scale
-        self._vehicle_length = env.scenario.vehicle_length
-        self._speed_scale = grid.speed_scale
-        self._heading_scale = grid.heading_scale_deg
-        lat_low, lat_high = grid.lateral_range
-        lon_low, lon_high = grid.longitudinal_range
-        lat_size = (lat_high - lat_low) / grid.lateral_cells
-        lon_size = (lon_high - lon_low) / grid.longitudinal_cells
-        self._lateral = lat_low + (np.arange(grid.lateral_cells) + 0.5) * lat_size
-        self._longitudinal = lon_low + (np.arange(grid.longitudinal_cells) + 0.5) * lon_size
-        self._ego_cell = (
-            math.floor(-lat_low / lat_size),
-            math.floor(-lon_low / lon_size),
-        )
+        self._crossings = CrossingReader(env, path_half_width_m, lane_half_width_m)
+        self._acceleration = self._crossings.acceleration
 
     def __call__(self, observation: Any) -> np.ndarray:
-        if isinstance(observation, Mapping):  # the env's route_observation: the grid alone
+        if isinstance(observation, Mapping):  # a Dict observation: the grid alone
             observation = observation["grid"]
-        rows, cols = np.nonzero(observation[..., 2] > 0)
         ego_speed = self._ego_speed(observation)
-        for row, col in zip(rows.tolist(), cols.tolist(), strict=True):
-            if (row, col) == self._ego_cell:
-                continue
-            if self._conflicts(observation, row, col, ego_speed):
+        stopping_distance = ego_speed * ego_speed / (2.0 * self._acceleration)
+        for window in self._crossings.windows(observation):
+            if self._conflicts(window, stopping_distance):
                 return np.array([-1.0], dtype=np.float32)
         return np.array([1.0], dtype=np.float32)
 
     def _ego_speed(self, grid: np.ndarray) -> float:
         """The ego's speed (m/s), read from its own cell of the grid."""
-        return float(grid[self._ego_cell][0]) * self._speed_scale
+        return self._crossings.ego_speed(grid)
 
-    def _conflicts(self, observation: np.ndarray, row: int, col: int, ego_speed: float) -> bool:
-        lateral = float(self._lateral[row])
-        ahead = float(self._longitudinal[col])
-        speed = float(observation[row, col, 0]) * self._speed_scale
-        heading = math.radians(float(observation[row, col, 1]) * self._heading_scale)
-        lateral_speed = speed * math.sin(heading)  # + moves to the ego's right
-        closing = -lateral_speed if lateral > 0 else lateral_speed
-        if ahead < 0 or abs(math.cos(heading)) > 0.7:
-            return False  # behind the ego, or driving along its heading
-        near = abs(lateral) - self.path_half_width_m - self._vehicle_length
-        if closing <= 0.1:
-            # Standing, or driving away: only a car in the path now is in the way.
-            return near <= 0 and abs(lateral) <= self.path_half_width_m + self._vehicle_length
-        car_enters = max(0.0, near) / closing - self.margin_s
-        car_leaves = (abs(lateral) + self.path_half_width_m) / closing + self.margin_s
-        to_lane = ahead - self.lane_half_width_m
-        past_lane = ahead + self.lane_half_width_m + self._vehicle_length
-        ego_enters = self._time_to(max(0.0, to_lane), ego_speed)
-        ego_leaves = self._time_to(max(0.0, past_lane), ego_speed)
-        if car_enters > ego_leaves or car_leaves < ego_enters:
+    def _conflicts(self, window: CrossingWindow, stopping_distance: float) -> bool:
+        if window.standing_in_path:
+            return True
+        car_enters = window.car_enters - self.margin_s
+        car_leaves = window.car_leaves + self.margin_s
+        if car_enters > window.ego_leaves or car_leaves < window.ego_enters:
             return False
-        stopping_distance = ego_speed * ego_speed / (2.0 * self._acceleration)
-        return stopping_distance < to_lane
-
-    def _time_to(self, distance: float, speed: float) -> float:
-        """Seconds the ego needs for ``distance`` metres at full throttle from ``speed``."""
-        a = self._acceleration
-        return (-speed + math.sqrt(speed * speed + 2.0 * a * distance)) / a
+        return stopping_distance < window.to_lane_m
 
 
 class CommittedGapAcceptancePolicy(GapAcceptancePolicy):
