@@ -273,7 +273,6 @@ def validate(
     threads = federation["threads_per_worker"]
     if threads < 0:
         raise ConfigError(f"federation.threads_per_worker must be >= 0, got {threads!r}")
-    cores = _check_cores(data["cores"], this_machine)
     device = check_device(data["device"]) if this_machine else data["device"]
     if data["config_version"] != CONFIG_VERSION:
         raise ConfigError(
@@ -281,6 +280,7 @@ def validate(
             "saved runs are migrated when they are read"
         )
     interval_steps = _interval_steps(data["interval"], data["total_steps"], agent)
+    cores = _check_cores(data["cores"], this_machine)
     try:
         plan = FederationPlan(
             scheme=federation["scheme"],
@@ -295,13 +295,14 @@ def validate(
             vehicles_per_round=federation["vehicles_per_round"],
         )
         strategy = StrategySpec(federation["strategy"], dict(federation["strategy_params"]))
+        fleet_size = plan.fleet_size
         env_config = EnvConfig.from_dict(data["env"])
-        vehicle_envs = _vehicle_envs(env_config, plan.fleet_size, federation)
         reward_config = RewardConfig.from_dict(reward)
         agent_config = DDPGConfig.from_dict(agent)
         check_teacher(agent_config.guide, env_config.route_observation)
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
+    vehicle_envs = _vehicle_envs(env_config, fleet_size, federation)
     budget_by_task = _budget_by_task(budget_by_task, plan, agent_config)
     if plan.aggregates and strategy.needs_global_model and not plan.shares_initial_model:
         raise ConfigError(

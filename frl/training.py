@@ -55,8 +55,9 @@ def schedule_line(plan: FederationPlan, agent: DDPGConfig) -> str:
     are counted as due (every ``train_freq``-th step from ``learning_starts`` on); the first
     waits until the buffer holds a batch."""
     freq, starts = agent.train_freq, agent.learning_starts
+    first_round_end = plan.round_end_step(0)
     updates = updates_due(plan.total_steps, freq, starts)
-    first_round = updates_due(plan.round_end_step(0), freq, starts)
+    first_round = updates_due(first_round_end, freq, starts)
     every = "an update every step" if freq == 1 else f"an update every {freq} steps"
     vehicles = plan.fleet_size
     # A fleet names its distinct tasks once, not each of its vehicles.
