@@ -206,6 +206,9 @@ RETIRED_ENV_OPTIONS: dict[str, RetiredOption] = {
     "commit_at_line": RetiredOption(
         False, '"Where the car stands: the committed rule and the junction in view"', "cff1f10"
     ),
+    "window_observation": RetiredOption(
+        False, '"Where the car stands: the committed rule and the junction in view"', "840d759"
+    ),
 }
 """Env options that frl retired (:mod:`frl.retirement`)."""
 
