@@ -88,7 +88,7 @@ def tiny_config(run_dir: Path) -> Any:
         "progress=false",
         f"run_dir={run_dir}",
     ]
-    with initialize_config_module(config_module="frl.conf", version_base=None):
+    with initialize_config_module(config_module="frl.conf", version_base="1.3"):
         return compose(config_name="config", overrides=overrides)
 
 

@@ -49,7 +49,7 @@ def test_cars_behind_along_the_heading_or_driving_away_are_left_out_a_car_in_the
         (20, 8, 0.0, 1.0),  # standing, far from the path
     ]
     for car in ignored:
-        assert reader.windows(grid_with(car)) == [], car
+        assert list(reader.windows(grid_with(car))) == [], car
     [standing] = reader.windows(grid_with((12, 6, 0.0, 1.0)))  # 3 m to the left, stopped
     assert (standing.side, standing.standing_in_path) == ("left", True)
 

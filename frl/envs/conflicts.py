@@ -14,6 +14,7 @@ stands".)
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,21 +76,20 @@ class CrossingReader:
         """The ego's speed (m/s), read from its own cell of the grid."""
         return float(grid[self.ego_cell][0]) * self._speed_scale
 
-    def windows(self, grid: np.ndarray) -> list[CrossingWindow]:
-        """The grid's crossing cars ahead of the ego, in the grid's row-major order.
+    def windows(self, grid: np.ndarray) -> Iterator[CrossingWindow]:
+        """The grid's crossing cars ahead of the ego, in the grid's row-major order, one at
+        a time (a rule that brakes at the first conflict reads no further).
 
         Cars behind the ego, or driving along its heading (after a turn, or ahead in
         its lane), are left out: SUMO's car following handles them. A car that stands or
         drives away is kept only where it is inside the ego's path now."""
         ego_speed = self.ego_speed(grid)
         rows, cols = np.nonzero(grid[..., 2] > 0)
-        found = []
         for row, col in zip(rows.tolist(), cols.tolist(), strict=True):
             if (row, col) != self.ego_cell:
                 window = self._window(grid, row, col, ego_speed)
                 if window is not None:
-                    found.append(window)
-        return found
+                    yield window
 
     def _window(
         self, grid: np.ndarray, row: int, col: int, ego_speed: float
