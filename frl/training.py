@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -125,7 +126,8 @@ def train(
 
     run_dir.mkdir(parents=True, exist_ok=True)
     OmegaConf.save(OmegaConf.create(to_save), run_dir / rundir.CONFIG_FILE)
-    write_json_atomic(run_dir / rundir.VERSIONS_FILE, versions())
+    run_versions = versions()
+    write_json_atomic(run_dir / rundir.VERSIONS_FILE, run_versions)
 
     state = (rundir.read_state(run_dir) if resuming else None) or RunState()
     if not state.training_finished:
@@ -136,7 +138,7 @@ def train(
             failure.completed_rounds = (rundir.read_state(run_dir) or RunState()).completed_rounds
             raise
 
-    results = training_results(settings, state, run_dir)
+    results = training_results(settings, state, run_dir, run_versions)
     for line in budget_lines(results["training"]["collision_budget"] or {}):
         log.info("collision budget, %s", line)
     previous = rundir.read_results(run_dir)
@@ -245,13 +247,15 @@ def collision_budget_state(settings: TrainSettings, state: RunState) -> dict[str
     }
 
 
-def training_results(settings: TrainSettings, state: RunState, run_dir: Path) -> dict[str, Any]:
-    """The training and communication sections of ``results.json``."""
+def training_results(
+    settings: TrainSettings, state: RunState, run_dir: Path, run_versions: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The training and communication sections of ``results.json``; ``run_versions`` are
+    the versions this session trained with (``versions.json``)."""
     plan = settings.plan
     step_rewards = rundir.read_step_rewards(run_dir)
     tail = max(1, int(len(step_rewards) * FINAL_REWARD_FRACTION))
     wall = state.wall_time_s
-    versions_path = run_dir / rundir.VERSIONS_FILE
     return {
         "scheme": plan.scheme,
         "backend": settings.backend,
@@ -326,9 +330,8 @@ def training_results(settings: TrainSettings, state: RunState, run_dir: Path) ->
             ),
         },
         "round_tests": round_tests_section(settings, state),
-        # The versions the training ran with (written at the session's start); HEAD may
-        # have moved by now.
-        "versions": read_json(versions_path) if versions_path.exists() else versions(),
+        # Taken at the session's start: HEAD may have moved by now.
+        "versions": dict(run_versions),
         "run_dir": os.fspath(run_dir),
     }
 
