@@ -336,12 +336,9 @@ def evaluate_run(
     files = rundir.model_files(run_dir)
     for path in {p for paths in files.values() for p in paths}:
         read_checkpoint(path)  # a missing or corrupt model fails here, not in a worker
-    models_dir = run_dir / rundir.MODELS_DIR
-    named = {
-        task: [p.relative_to(models_dir).as_posix() for p in paths] for task, paths in files.items()
-    }
     model_files: dict[str, str | list[str]] = {
-        task: names[0] if len(names) == 1 else names for task, names in named.items()
+        task: paths[0].name if len(paths) == 1 else [p.name for p in paths]
+        for task, paths in files.items()
     }
     tasks = list(model_files)
     paths: dict[str, str | list[str]] = {
@@ -497,12 +494,6 @@ def format_table(results: dict[str, Any]) -> str:
         f"{evaluation['episodes_per_task']} test episodes per task, exploration off"
         + (f", traffic {traffic}" if traffic else "")
     )
-    round_tests = results.get("round_tests") or {}
-    if round_tests.get("deploy") == "best_round":
-        header += (
-            f"; model of round {round_tests['deployed_round']} of {len(round_tests['points'])}"
-            " (deploy=best_round: its per-round test returned most)"
-        )
     lines = [header, _format_rows("model", evaluation)]
     for name, table in evaluation.get("yardsticks", {}).items():
         lines.append(_format_rows(f"{_label(name)} (same seeds)", table, per_task=False))

@@ -42,10 +42,6 @@ STEP_REWARDS_FILE = "step_rewards.npy"
 CHECKPOINT_DIR = "checkpoints"
 MODELS_DIR = "models"
 MODEL_INDEX_FILE = "index.json"
-BEST_ROUND_DIR = "best_round"
-"""Under ``models/``: the model file(s) of the best-tested round (``deploy=best_round``);
-under ``checkpoints/``, one folder per round while training."""
-BEST_ROUNDS_DIR = f"{CHECKPOINT_DIR}/{BEST_ROUND_DIR}"
 RESULTS_FILE = "results.json"
 FIGURE_FILE = "figure.png"
 TB_DIR = "tb"
@@ -211,12 +207,6 @@ of the fleet)."""
 def checkpoint_dir(completed_rounds: int) -> str:
     """Where the clients' states after round ``completed_rounds`` go, relative to the run."""
     return f"{CHECKPOINT_DIR}/round_{completed_rounds:04d}"
-
-
-def best_round_dir(completed_rounds: int) -> str:
-    """Where the deployed model(s) after round ``completed_rounds`` wait while it is the
-    best-tested round (``deploy=best_round``), relative to the run."""
-    return f"{BEST_ROUNDS_DIR}/round_{completed_rounds:04d}"
 
 
 # ------------------------------------------------------------------ results

@@ -41,7 +41,7 @@ from frl.federation.plan import (
     FederationPlan,
 )
 from frl.federation.reachability import unreachable_reason
-from frl.federation.run_settings import DEPLOY_RULES, FlowerSettings, TrainSettings
+from frl.federation.run_settings import FlowerSettings, TrainSettings
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores
 from frl.policies import DEFAULT_YARDSTICKS, YARDSTICKS, check_teacher
@@ -188,9 +188,6 @@ class TrainSchema:
     round_test_episodes: int = 0
     """Test episodes per task after every round, on seeds of their own (the per-round test
     curve, ``eval/round/...``); 0: none."""
-    deploy: str = "last"
-    """Which round's model(s) the run deploys and tests: ``last``; or ``best_round``, the
-    round whose per-round test returned most (needs ``round_test_episodes``)."""
     yardsticks: list[str] = field(default_factory=lambda: list(DEFAULT_YARDSTICKS))
     """Yardstick policies tested on the same seeds beside the model (frl.policies)."""
     progress: bool = True
@@ -262,15 +259,6 @@ def validate(
         raise ConfigError(
             "round_test_episodes must be a non-negative integer (0: no per-round test), "
             f"got {data['round_test_episodes']!r}"
-        )
-    if data["deploy"] not in DEPLOY_RULES:
-        raise ConfigError(
-            f"unknown deploy {data['deploy']!r}; choose one of {', '.join(DEPLOY_RULES)}"
-        )
-    if data["deploy"] == "best_round" and data["round_test_episodes"] <= 0:
-        raise ConfigError(
-            "deploy=best_round picks the round by its per-round test: set "
-            "round_test_episodes to a positive number"
         )
     yardsticks = tuple(data["yardsticks"])
     unknown_yardsticks = [name for name in yardsticks if name not in YARDSTICKS]
@@ -350,7 +338,6 @@ def validate(
         vehicle_envs=vehicle_envs,
         workers=federation["workers"],
         round_test_episodes=data["round_test_episodes"],
-        deploy=data["deploy"],
         collision_budget_by_task=budget_by_task,
     )
 

@@ -26,7 +26,6 @@ from frl.federation.client_pool import ProcessClientPool
 from frl.federation.collision_budget import budget_end_state, budget_lines
 from frl.federation.coordinator import run_logged
 from frl.federation.plan import FederationPlan
-from frl.federation.round_tests import best_round_index
 from frl.federation.strategies import ServerStrategy
 from frl.federation.tensorboard import (
     EPISODE_WINDOW,
@@ -227,17 +226,11 @@ def round_tests_section(settings: TrainSettings, state: RunState) -> dict[str, A
     """The per-round test curve of ``results.json``; None for a run without it."""
     if not state.round_tests:
         return None
-    best = best_round_index(state.round_tests)
     return {
         "episodes_per_task": settings.round_test_episodes,
         "exploration": False,
         "seeds": ROUND_TEST_SEEDS_DEFINITION,
         "points": state.round_tests,
-        "deploy": settings.deploy,
-        # The round whose model(s) the final test drives (1-based).
-        "deployed_round": (
-            len(state.round_tests) if settings.deploy == "last" or best is None else best + 1
-        ),
     }
 
 

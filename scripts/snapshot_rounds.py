@@ -53,9 +53,6 @@ def copy_round(run_dir: Path, steps: int) -> Path | None:
         else:
             shutil.copy2(item, partial / item.name)
     shutil.copytree(run_dir / state.checkpoint, partial / state.checkpoint)
-    best_rounds = run_dir / rundir.BEST_ROUNDS_DIR  # deploy=best_round's kept models
-    if best_rounds.is_dir():
-        shutil.copytree(best_rounds, partial / rundir.BEST_ROUNDS_DIR)
     # The round may have ended while copying: the copy is good only if it still names it.
     after = rundir.read_state(run_dir)
     if after is None or after.steps_per_client != steps:

@@ -68,8 +68,6 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("nonsense", "Error parsing override 'nonsense'"),
         ("eval_episodes=-1", "eval_episodes must be a non-negative integer"),
         ("round_test_episodes=-2", "round_test_episodes must be a non-negative integer"),
-        ("deploy=best", "unknown deploy 'best'"),
-        ("deploy=best_round", "deploy=best_round picks the round by its per-round test"),
         ("device=gpu0", "device='gpu0' is not a torch device"),
         ("agent.guide=oracle", "guide must be one of none, gap_acceptance"),
         (

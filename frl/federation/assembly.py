@@ -91,5 +91,4 @@ def round_tester(settings: TrainSettings) -> RoundTester | None:
         device=settings.device,
         num_threads=worker_threads(settings, len(tasks)),
         timeout_s=settings.worker_timeout_s,
-        deploy=settings.deploy,
     )

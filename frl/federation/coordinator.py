@@ -12,9 +12,7 @@ One round (Section III.C, Fig. 2):
    buffer, optimizer, noise, generators), the roadside unit's (the global model and the
    strategy's momentum or moments, where the run needs them), then ``state.json``,
    which commits the round; with a :class:`RoundTester`, the deployed model's test on
-   the round-test seeds is committed with it (the per-round test curve), and under
-   ``deploy=best_round`` the model(s) of the best-tested round so far are kept, to be
-   the run's deployed models at its end.
+   the round-test seeds is committed with it (the per-round test curve).
 
 A run killed at any point resumes from the last committed round with nothing before it
 lost, and ends as the run never killed: each vehicle's checkpoint holds its drive
@@ -41,7 +39,7 @@ from frl.federation.client import LocalUpdate
 from frl.federation.client_pool import ClientPool
 from frl.federation.collision_budget import round_record
 from frl.federation.plan import FederationPlan, round_sample
-from frl.federation.round_tests import RoundTester, best_round_index
+from frl.federation.round_tests import RoundTester
 from frl.federation.strategies import Aggregator, ServerStrategy, StrategySpec
 from frl.federation.tensorboard import EPISODE_WINDOW, TrainingLogger, resume_purge_step
 from frl.fileio import write_json_atomic
@@ -192,8 +190,6 @@ class Coordinator:
             [step_rewards, np.mean(np.stack([u.step_rewards for u in updates]), axis=0)]
         ).astype(np.float32)
         round_test = self._test_round(state)
-        if round_test is not None and self._deploys_best_round:
-            self._keep_if_best(state)
 
         round_time = time.perf_counter() - round_started
         began = time.perf_counter()
@@ -238,27 +234,6 @@ class Coordinator:
         state.round_tests.append(point)
         state.round_test_s += time.perf_counter() - began
         return point
-
-    @property
-    def _deploys_best_round(self) -> bool:
-        return self.round_tester is not None and self.round_tester.deploy == "best_round"
-
-    def _keep_if_best(self, state: RunState) -> None:
-        """Write this round's deployed model file(s) where the best-tested round's wait,
-        if its test returned most so far (``deploy=best_round``)."""
-        if best_round_index(state.round_tests) == len(state.round_tests) - 1:
-            began = time.perf_counter()
-            self._write_models(self.run_dir / rundir.best_round_dir(state.completed_rounds))
-            state.checkpoint_s += time.perf_counter() - began
-
-    def _prune_best_rounds(self, state: RunState) -> None:
-        """Drop the kept model files of every round but the best-tested one (a later round
-        may have replaced it, or a session killed before its commit left one behind)."""
-        best = best_round_index(state.round_tests)
-        keep = None if best is None else Path(rundir.best_round_dir(best + 1)).name
-        for folder in (self.run_dir / rundir.BEST_ROUNDS_DIR).glob("round_*"):
-            if folder.name != keep:
-                shutil.rmtree(folder, ignore_errors=True)
 
     def _deployed(self) -> dict[str, list[dict[str, Tensor]]]:
         """Each test task's model(s), as the final test deploys them (``plan.model_files``):
@@ -326,42 +301,19 @@ class Coordinator:
         return {key: value for key, value in model.items() if not is_target_key(key)}
 
     def _finish(self, state: RunState) -> None:
-        """Save the final models (and, under ``deploy=best_round``, the best-tested
-        round's beside them), mark training finished and drop the last checkpoint."""
-        models = self.run_dir / rundir.MODELS_DIR
-        self._write_models(models)
-        index = self.plan.model_files(list(self.clients.names))
-        if self._deploys_best_round:
-            self._move_best_round(state, models / rundir.BEST_ROUND_DIR)
-            index = {task: _under(rundir.BEST_ROUND_DIR, files) for task, files in index.items()}
-        write_json_atomic(models / rundir.MODEL_INDEX_FILE, index)
+        """Save the final models, mark training finished and drop the last checkpoint."""
+        if self.plan.aggregates and self.plan.samples and self.global_model is not None:
+            # The first vehicle may have sat out the last round: it writes the global model.
+            self.clients.set_parameters(
+                self.global_model, sync_targets=self.plan.targets == "resync", vehicles=[0]
+            )
+        self._save_models()
         state.training_finished = True
         checkpoint, state.checkpoint = state.checkpoint, None
         rundir.write_state(self.run_dir, state)
         # The models are saved; the replay buffers are not needed any more.
         if checkpoint is not None:
             shutil.rmtree(self.run_dir / checkpoint, ignore_errors=True)
-        shutil.rmtree(self.run_dir / rundir.BEST_ROUNDS_DIR, ignore_errors=True)
-
-    def _move_best_round(self, state: RunState, target: Path) -> None:
-        """The best-tested round's kept model file(s) into ``target``."""
-        best = best_round_index(state.round_tests)
-        if best is None:
-            raise RuntimeError("deploy=best_round, but no round was tested")
-        source = self.run_dir / rundir.best_round_dir(best + 1)
-        if source.is_dir():
-            shutil.rmtree(target, ignore_errors=True)
-            source.replace(target)
-        elif not target.is_dir():  # moved by a session killed before it committed
-            raise RuntimeError(f"round {best + 1}'s model files are missing from {source}")
-        log.info(
-            "deployed: round %d's model(s), whose per-round test returned %.2f, the most of "
-            "%d rounds (deploy=best_round); the last round's stay in %s",
-            best + 1,
-            state.round_tests[best]["average"]["average_reward"],
-            len(state.round_tests),
-            rundir.MODELS_DIR,
-        )
 
     # ------------------------------------------------------------------ files
     def _checkpoint(self, state: RunState, step_rewards: np.ndarray) -> None:
@@ -376,8 +328,6 @@ class Coordinator:
         rundir.write_step_rewards(self.run_dir, step_rewards)
         state.checkpoint = relative
         rundir.write_state(self.run_dir, state)
-        if self._deploys_best_round:
-            self._prune_best_rounds(state)
         for old in directory.parent.glob("round_*"):
             if old.name != directory.name:
                 shutil.rmtree(old, ignore_errors=True)
@@ -399,24 +349,18 @@ class Coordinator:
         self.global_model = dict(data["global_model"])
         self.strategy.load_state_dict(dict(data["strategy"]))
 
-    def _write_models(self, directory: Path) -> None:
-        """The deployed model file(s) as they stand now into ``directory``: FedAvg's global
-        model, Central's model, or every Sep-DDPG vehicle's own."""
-        if self.plan.aggregates and self.plan.samples and self.global_model is not None:
-            # The first vehicle may have sat out the round: it writes the global model.
-            # (A vehicle's parameters are replaced by the global model whenever it is
-            # drawn again, so this changes nothing of its training.)
-            self.clients.set_parameters(
-                self.global_model, sync_targets=self.plan.targets == "resync", vehicles=[0]
-            )
+    def _save_models(self) -> None:
+        """Final models under ``models/`` and ``models/index.json`` (task -> file)."""
+        models = self.run_dir / rundir.MODELS_DIR
         names = self.clients.names
         if self.plan.scheme == "fedavg":  # every client holds the global model
-            paths: list[Path | None] = [directory / "global.pt"] + [None] * (len(names) - 1)
+            paths: list[Path | None] = [models / "global.pt"] + [None] * (len(names) - 1)
         elif self.plan.scheme == "central":
-            paths = [directory / "central.pt"]
+            paths = [models / "central.pt"]
         else:
-            paths = [directory / f"{name}.pt" for name in names]
+            paths = [models / f"{name}.pt" for name in names]
         self.clients.save_models(paths)
+        write_json_atomic(models / rundir.MODEL_INDEX_FILE, self.plan.model_files(list(names)))
 
 
 def run_logged(
@@ -454,13 +398,6 @@ def run_logged(
             round_tester=round_tester,
         )
         return coordinator.run(state)
-
-
-def _under(folder: str, files: str | list[str]) -> str | list[str]:
-    """``files`` (a model index entry) as paths under ``folder``."""
-    if isinstance(files, str):
-        return f"{folder}/{files}"
-    return [f"{folder}/{name}" for name in files]
 
 
 def _count_episodes(state: RunState, updates: list[LocalUpdate]) -> None:

@@ -4,9 +4,8 @@ every round with exploration off, on a fixed small set of seeds per task.
 The training curve (``rollout/ep_rew_mean``, Fig. 4's) mixes the policy with its
 exploration noise; this curve does not. Each task's episodes run in a worker process of
 their own (one SUMO each), apart from the vehicles, so a run trains exactly the same with
-the curve on or off. With ``deploy=best_round`` the curve also chooses the model the run
-deploys: the round whose test returned most (:func:`best_round_index`). The seeds
-(:func:`frl.federation.plan.round_test_seeds`) are disjoint from the final test's.
+the curve on or off. The seeds (:func:`frl.federation.plan.round_test_seeds`) are
+disjoint from the final test's.
 """
 
 from __future__ import annotations
@@ -20,27 +19,11 @@ from torch import Tensor
 from frl.agents import DDPG, DDPGConfig
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, average_over_tasks, run_episodes, summarize
-from frl.federation.run_settings import DEPLOY_RULES
 from frl.federation.workers import WorkerPool
 from frl.policies import install_guide
 
 ACTOR_PREFIX = "actor."
 """Keys of the online actor in a federated state: all a test drive needs."""
-
-
-def best_round_index(points: Sequence[Mapping[str, Any]]) -> int | None:
-    """Index into the per-round test ``points`` of the round whose test returned most on
-    average over the tasks (the later of equals: it trained longer); None without points.
-
-    The return, not the collision rate, decides: it prices collisions, arrivals and time
-    together, and it is what the agent maximises.
-    """
-    best: int | None = None
-    for index, point in enumerate(points):
-        score = float(point["average"]["average_reward"])
-        if best is None or score >= float(points[best]["average"]["average_reward"]):
-            best = index
-    return best
 
 
 def actor_state(model: Mapping[str, Tensor]) -> dict[str, Tensor]:
@@ -103,8 +86,6 @@ class RoundTester:
         device: where the test agents run.
         num_threads: torch threads per worker.
         timeout_s: longest one round's tests may take in a worker (None: no limit).
-        deploy: which round's model(s) the run deploys (:data:`DEPLOY_RULES`); with
-            ``best_round`` the roadside unit keeps the best-tested round's models.
     """
 
     def __init__(
@@ -116,13 +97,9 @@ class RoundTester:
         device: str = "cpu",
         num_threads: int | None = None,
         timeout_s: float | None = None,
-        deploy: str = "last",
     ) -> None:
         if set(envs) != set(seeds):
             raise ValueError("envs and seeds must name the same tasks")
-        if deploy not in DEPLOY_RULES:
-            raise ValueError(f"unknown deploy {deploy!r}; choose one of {', '.join(DEPLOY_RULES)}")
-        self.deploy = deploy
         self.tasks = list(envs)
         self.seeds = {task: [int(s) for s in seeds[task]] for task in self.tasks}
         factories = [

@@ -12,10 +12,6 @@ from frl.envs import EnvConfig, RewardConfig
 from frl.federation.plan import FederationPlan
 from frl.federation.strategies import StrategySpec
 
-DEPLOY_RULES = ("last", "best_round")
-"""Which round's model(s) a run deploys (``deploy``): the last round's, or the round whose
-per-round test returned most on average over the tasks."""
-
 
 @dataclass(frozen=True)
 class FlowerSettings:
@@ -58,9 +54,6 @@ class TrainSettings:
     workers: int = 0
     round_test_episodes: int = 0
     """Test episodes per task after every round (the per-round test curve); 0: none."""
-    deploy: str = "last"
-    """Which round's model(s) the run deploys and tests: ``last``, or ``best_round`` (the
-    round whose per-round test returned most; needs ``round_test_episodes``)."""
     collision_budget_by_task: Mapping[str, float] | None = None
     """Each task's vehicles' collision budget (``agent.collision_budget_by_task``); None:
     every vehicle has ``agent.collision_budget``."""
