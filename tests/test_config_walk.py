@@ -54,3 +54,17 @@ def test_the_walk_lists_frl_functions_once_in_order_of_first_call(walk_tool):
     assert functions.count("read_json") == 1
     assert all(module.startswith("frl") for module, _ in walk)  # the entry here is no frl's
     assert walk_tool.module_of(__file__) is None
+
+
+def test_the_way_from_the_command_to_the_run_climbs_back_at_most_15_times(walk_tool, tmp_path):
+    # A newcomer following ``cfg`` from ``training.train`` reads down the layers, coming
+    # back up at most 15 times; ``open_run``, the model of it, 4 times (docs/layout.md).
+    from frl.run_opening import open_run
+    from frl.training import train
+
+    layer_of = walk_tool.layering().layer_of
+    cfg = walk_tool.tiny_config(tmp_path / "run")
+    assert len(walk_tool.climbs(walk_tool.first_calls(open_run, cfg, None), layer_of)) <= 4
+    walk = walk_tool.first_calls(train, cfg)
+    assert len(walk) > 150  # the whole run was walked, not a refusal
+    assert len(walk_tool.climbs(walk, layer_of)) <= 15
