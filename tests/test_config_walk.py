@@ -37,7 +37,7 @@ def test_a_climb_is_a_step_to_a_higher_layer(walk_tool):
     assert walk_tool.climbs(walk[:3], layers.__getitem__) == []
 
 
-def test_the_walk_lists_frl_functions_once_in_order_of_first_call(walk_tool):
+def test_the_walk_lists_frl_functions_once_in_order_of_first_call(walk_tool, tmp_path):
     from frl.fileio import read_json, write_json_atomic
 
     def entry(path: Path) -> None:
@@ -45,10 +45,7 @@ def test_the_walk_lists_frl_functions_once_in_order_of_first_call(walk_tool):
         read_json(path)
         read_json(path)
 
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        walk = walk_tool.first_calls(entry, Path(tmp) / "x.json")
+    walk = walk_tool.first_calls(entry, tmp_path / "x.json")
     functions = [function for module, function in walk if module == "frl.fileio"]
     assert functions.index("write_json_atomic") < functions.index("read_json")
     assert functions.count("read_json") == 1
