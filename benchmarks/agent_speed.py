@@ -13,7 +13,7 @@ frl's figures and says how to add the comparison.
 
     python benchmarks/agent_speed.py [--blocks 16] [--threads N] [--profile] [--device cpu]
         [--precisions float32,bf16] [--option n_step=1 ...] [--variant "NAME KEY=VALUE ..."]
-        [--dense] [--skip-sb3] [--skip-floor]
+        [--dense] [--skip-sb3] [--skip-floor] [--skip-peak] [--skip-buffer]
 
 ``--option KEY=VALUE`` sets a DDPGConfig field of the frl agents (repeatable);
 ``--variant "NAME KEY=VALUE ..."`` adds a row of the default agent with those fields
@@ -29,6 +29,13 @@ any eager PyTorch implementation pays (its matmuls through autograd at the preci
 ``auto`` picks, the weight casts, fused Adam and the soft update, at full size), without
 replay, acting or the first layer's gather (``--skip-floor`` leaves it out). How far
 frl's Table II row sits above it is the per-operation work left to remove.
+
+A second table says how close each row runs to this machine's limit (``--skip-peak``
+leaves it out): its matrix products' FLOPs per step, counted on the real steps, and its
+share of the peak, the time those same products take on their own, each timed alone on
+fresh tensors of the same shapes, in this run and on these threads (matmul_peak.py), over
+the step's time. The default agent's row is its training update, collision budget and
+cost head included, made every step here (training makes one every ``train_freq`` = 8).
 """
 
 from __future__ import annotations
@@ -52,12 +59,14 @@ from frl.agents import DDPG, DDPGConfig, ReplayBuffer
 from frl.agents.functional import soft_update
 from frl.agents.precision import has_native_bf16, resolve_precision
 from frl.envs import TASKS, EnvConfig, IntersectionEnv
+from frl.federation.workers import available_cores
 from frl.policies import install_guide
 from frl.train_config import ConfigError, check_device
 
 # The helpers beside this script, also under PYTHONSAFEPATH=1 (docs/reproduction.md).
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu_settings import configure_cpu_training
+from matmul_peak import Arithmetic, measure_arithmetic
 
 GRID_SHAPE = (26, 18, 3)
 TABLE_II = {"n_step": 1, "warmup_hold_steps": 1.0, "encoder": "flat", "actor_update": "tanh"}
@@ -70,6 +79,15 @@ def default_agent_fields() -> dict:
     preset = OmegaConf.to_container(OmegaConf.load(files("frl.conf") / "agent" / "ddpg.yaml"))
     preset.pop("name")
     return DDPGConfig.from_dict(preset).to_dict()
+
+
+def default_budget_fields() -> dict:
+    """The agent fields the default budget (``budget=data``) adds, its collision budget,
+    without its ``train_freq``: a row here times one update per step."""
+    budget = OmegaConf.to_container(OmegaConf.load(files("frl.conf") / "budget" / "data.yaml"))
+    fields = dict(budget["agent"])
+    fields.pop("train_freq")
+    return fields
 
 
 BLOCK = 25
@@ -128,6 +146,15 @@ class Learner:
         raise NotImplementedError
 
     device = torch.device("cpu")
+
+    def steps(self, count: int) -> None:
+        """``count`` training steps, untimed."""
+        for _ in range(count):
+            self.step()
+
+    def arithmetic(self, steps: int = BLOCK) -> Arithmetic:
+        """The matrix products of ``steps`` steps, counted and timed alone."""
+        return measure_arithmetic(lambda: self.steps(steps), steps)
 
     def block(self) -> float:
         """Run one block; milliseconds per training step."""
@@ -346,6 +373,9 @@ class StableBaselines3Learner(Learner):
         )
         self.model.learn(1_050)
 
+    def steps(self, count: int) -> None:
+        self.model.learn(count, reset_num_timesteps=False)
+
     def block(self) -> float:
         self.clock.stamps.clear()
         self.model.learn(BLOCK + 1, callback=self.clock, reset_num_timesteps=False)
@@ -369,6 +399,24 @@ def buffer_megabytes(scenes: RecordedScenes, transitions: int = 100_000) -> tupl
         buffer.add(obs, np.zeros(1), reward, next_obs, terminated)
         obs = next_obs
     return buffer.nbytes / 1e6, buffer._obs.width
+
+
+def print_shares_of_peak(learners: list[Learner], times: dict[str, list[float]]) -> None:
+    """Each row's FLOPs per step and its share of this machine's peak on the same products."""
+    print(
+        "arithmetic per training step (matrix products; the peak: the same products timed "
+        "alone, this run, these threads):"
+    )
+    print(f"  {'':<46} {'GFLOP':>7} {'GFLOP/s':>8} {'peak GFLOP/s':>13} {'share':>6}")
+    for learner in learners:
+        arithmetic = learner.arithmetic()
+        step_seconds = float(np.median(times[learner.label])) / 1e3
+        print(
+            f"  {learner.label:<46} {arithmetic.flops_per_step / 1e9:7.3f} "
+            f"{arithmetic.flops_per_step / step_seconds / 1e9:8.1f} "
+            f"{arithmetic.peak_flops_per_second / 1e9:13.1f} "
+            f"{arithmetic.share_of_peak(step_seconds):6.0%}"
+        )
 
 
 def parse_options(parser: argparse.ArgumentParser, items: list[str]) -> dict:
@@ -410,6 +458,7 @@ def main() -> None:
     parser.add_argument("--skip-sb3", action="store_true")
     parser.add_argument("--skip-floor", action="store_true", help="no eager-PyTorch floor")
     parser.add_argument("--skip-buffer", action="store_true")
+    parser.add_argument("--skip-peak", action="store_true", help="no share of the peak")
     parser.add_argument(
         "--device", default="cpu", help="where frl's networks and updates run (cpu, cuda)"
     )
@@ -421,6 +470,10 @@ def main() -> None:
         help="a row of the default agent with these fields",
     )  # fmt: skip
     args = parser.parse_args()
+    if args.threads is not None and not 0 < args.threads <= available_cores():
+        parser.error(
+            f"--threads {args.threads}: this process may use 1 to {available_cores()} cores"
+        )
     options = parse_options(parser, args.option)
     variants = [parse_variant(parser, text) for text in args.variant]
     precisions = args.precisions.split(",")
@@ -462,7 +515,7 @@ def main() -> None:
         )
         for name in precisions
     ]
-    default = config(**options)
+    default = config(**{**default_budget_fields(), **options})
     used = resolve_precision(default.precision, device)
     resolved = f" ({used})" if used != default.precision else ""
     learners.append(
@@ -472,7 +525,7 @@ def main() -> None:
     )
     for name, fields, route in variants:
         try:
-            variant = config(**{**options, **fields})
+            variant = config(**{**default_budget_fields(), **options, **fields})
         except ValueError as error:
             parser.error(f"--variant {name}: {error}")
         learners.append(
@@ -518,6 +571,9 @@ def main() -> None:
             "Stable-Baselines3 is not installed, so there is no side-by-side figure: "
             "pip install -c constraints.txt -e '.[bench]'"
         )
+
+    if not args.skip_peak:
+        print_shares_of_peak(learners, times)
 
     if not args.skip_buffer:
         megabytes, width = buffer_megabytes(scenes)
