@@ -82,6 +82,35 @@ def test_sparse_rows_give_the_dense_grids_encoding_bit_for_bit() -> None:
     assert torch.equal(module(sparse), module(batch))
 
 
+def test_a_sampled_batch_carries_its_vehicles_and_they_encode_as_the_grids_do() -> None:
+    """The replay buffer finds each batch's vehicles once (NumPy); every network reading
+    the batch gets the encoding of the dense grids, and of the rows without them."""
+    from frl.agents import ReplayBuffer
+
+    module = encoder(width=16)
+    grids = [
+        grid_with((2, 4, 0.5, 1.0), (20, 9, 0.0, -1.0)),
+        grid_with(),
+        grid_with((13, 2, 0.3, 0.0), (25, 17, 0.7, 1.5)),
+        grid_with((0, 0, 0.0, 0.0)),
+    ]
+    buffer = ReplayBuffer(
+        8, (26, 18, 3), 1, np.random.default_rng(0), sparse=True, vehicle_geometry=module.geometry
+    )
+    for grid, next_grid in zip(grids, grids[1:] + grids[:1], strict=True):
+        buffer.add(grid.numpy().reshape(26, 18, 3), np.zeros(1), 0.0, next_grid.numpy(), False)
+    batch = buffer.gather(np.array([0, 1, 2, 3, 2]), sparse=True)
+    dense = torch.cat([grids[i] for i in (0, 1, 2, 3, 2)])
+    for rows in (batch.obs, batch.next_obs):
+        assert rows.vehicles is not None and rows.vehicles.geometry == module.geometry
+    assert batch.obs.vehicles.sample.tolist() == [0, 0, 2, 2, 3, 4, 4]
+    assert torch.equal(module(batch.obs), module(dense))
+    assert torch.equal(module(batch.obs), module(batch.obs._replace(vehicles=None)))
+    # Vehicles found for another grid are not used: this encoder finds its own.
+    other = batch.next_obs._replace(vehicles=batch.obs.vehicles._replace(geometry=(1, 2, 0)))
+    assert torch.equal(module(other), module(batch.next_obs))
+
+
 def test_a_nearby_position_gives_a_nearby_encoding() -> None:
     """Positions are numbers, not one-hot inputs: the next cell over is close."""
     module = encoder(width=32)

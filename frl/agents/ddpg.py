@@ -108,9 +108,11 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         self.explorer = Explorer(cfg, self.action_dim, rng(noise_seq), rng(warmup_seq))
         # Compact storage whenever the observation is large, even for a dense network.
         compact = cfg.sparse.input is True or self.obs_dim >= cfg.sparse.min_features
+        encoder = nets.critic.encoder
         self.buffer = ReplayBuffer(
             cfg.buffer_size, self.obs_shape, self.action_dim, rng(buffer_seq), sparse=compact,
             sparse_width=cfg.sparse.capacity, guided=cfg.guided, costed=cfg.costed,
+            vehicle_geometry=None if encoder is None else encoder.geometry,
         )  # fmt: skip
         self.teacher = Teacher(cfg.guide, self.layout, self.scale) if cfg.guided else None
         self.writer = TransitionWriter(self.buffer, cfg.n_step, cfg.gamma, self.teacher)

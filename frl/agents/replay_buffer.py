@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from frl.agents.grid_vehicles import find_vehicles
 from frl.agents.noise import generator_state, set_generator_state
 from frl.agents.sparse_linear import SparseRows
 
@@ -107,9 +108,13 @@ class _SparseStore:
         offsets = np.cumsum(counts, dtype=np.int64) - counts
         return indices, values, offsets
 
-    def rows(self, slots: np.ndarray, transposed: bool) -> SparseRows:
+    def rows(
+        self, slots: np.ndarray, transposed: bool, vehicles: tuple[int, int, int] | None = None
+    ) -> SparseRows:
         """The observations at ``slots`` as :class:`SparseRows`, with their transpose
-        (the weight gradient's layout) when ``transposed``."""
+        (the weight gradient's layout) when ``transposed``, and their vehicles where
+        ``vehicles`` gives the grid's geometry
+        (:func:`frl.agents.grid_vehicles.find_vehicles`)."""
         indices, values, offsets = self.get(slots)
         by_feature = None
         if transposed:
@@ -124,12 +129,16 @@ class _SparseStore:
                 torch.from_numpy(np.cumsum(per_feature) - per_feature),
                 len(slots),
             )
+        found = None
+        if vehicles is not None:
+            found = find_vehicles(indices, values, self.counts[slots], self.num_features, vehicles)
         return SparseRows(
             torch.from_numpy(indices.astype(np.int64)),
             torch.from_numpy(values),
             torch.from_numpy(offsets),
             self.num_features,
             by_feature,
+            found,
         )
 
     def dense(self, slots: np.ndarray) -> np.ndarray:
@@ -153,6 +162,9 @@ class ReplayBuffer:
         guided: store a teacher's action at ``obs`` with every transition
             (:attr:`frl.agents.DDPGConfig.guide`).
         costed: store each transition's cost (a collision budget's cost critic learns it).
+        vehicle_geometry: a vehicles encoder's ``geometry``
+            (:class:`frl.agents.vehicle_encoder.VehicleSetEncoder`): compact batches come
+            with their vehicles, found once per batch in NumPy.
     """
 
     def __init__(
@@ -165,6 +177,7 @@ class ReplayBuffer:
         sparse_width: int = 64,
         guided: bool = False,
         costed: bool = False,
+        vehicle_geometry: tuple[int, int, int] | None = None,
     ) -> None:
         if capacity <= 0:
             raise ValueError(f"capacity must be positive, got {capacity}")
@@ -173,6 +186,7 @@ class ReplayBuffer:
         self.num_features = int(np.prod(self.obs_shape, dtype=np.int64))
         self.action_dim = action_dim
         self.rng = rng
+        self.vehicle_geometry = vehicle_geometry
         self.sparse = sparse
         if sparse:
             self._obs: Any = _SparseStore(capacity, self.num_features, sparse_width)
@@ -252,7 +266,7 @@ class ReplayBuffer:
             dense = torch.from_numpy(store[slots])
             return SparseRows.from_dense(dense) if as_sparse else dense
         if as_sparse:
-            return store.rows(slots, transposed)
+            return store.rows(slots, transposed, self.vehicle_geometry)
         return torch.from_numpy(store.dense(slots))
 
     def sample_slots(self, batch_size: int) -> np.ndarray:

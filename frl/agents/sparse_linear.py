@@ -10,12 +10,15 @@ batch or a :class:`SparseRows` batch of the same numbers.
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+if TYPE_CHECKING:
+    from frl.agents.grid_vehicles import GridVehicles
 
 
 class SparseRows(NamedTuple):
@@ -39,6 +42,9 @@ class SparseRows(NamedTuple):
     that hold it, in row order), which the weight gradient needs; :meth:`transposed`
     computes it when absent. The replay buffer attaches it, computed in NumPy, to the
     observations that a gradient flows through."""
+    vehicles: GridVehicles | None = None
+    """The vehicles these rows show, for the vehicles encoder; the replay buffer attaches
+    them, found in NumPy once per batch, so the networks that read a batch share them."""
 
     @property
     def batch_size(self) -> int:
@@ -52,6 +58,7 @@ class SparseRows(NamedTuple):
             self.offsets.to(device, non_blocking=non_blocking),
             self.num_features,
             None if self.by_feature is None else self.by_feature.to(device),
+            None if self.vehicles is None else self.vehicles.to(device, non_blocking),
         )
 
     def row_ids(self) -> Tensor:

@@ -20,6 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from frl.agents.grid_vehicles import GridVehicles, find_vehicles
 from frl.agents.sparse_linear import SparseRows
 
 
@@ -29,7 +30,9 @@ class VehicleSetEncoder(nn.Module):
 
     Reads dense batches or :class:`SparseRows` (the replay buffer's compact form, whose
     rows list their non-zeros in increasing feature order): the same vehicles, in the
-    same order, from either.
+    same order, from either. A sampled batch carries its vehicles, found once in NumPy by
+    the replay buffer (:mod:`frl.agents.grid_vehicles`), so the five networks that read it
+    in an update do not each find them again.
 
     Args:
         grid_shape: ``(H, W, C)``; the last channel is 1 in occupied cells, 0 elsewhere
@@ -52,6 +55,8 @@ class VehicleSetEncoder(nn.Module):
         self.grid_features = rows * columns * channels
         self.extra_features = int(extra_features)
         self.out_features = 2 * width + self.extra_features
+        self.geometry = (self.grid_features, channels, self.extra_features)
+        """What :func:`find_vehicles` needs to find this encoder's vehicles."""
         self.layers = nn.ModuleList([nn.Linear(2 + channels - 1, width), nn.Linear(width, width)])
         # Each cell's (row, column) in [-1, 1]; filled by reset_parameters. Not in the
         # state dict: a function of the shape, not a parameter to average.
@@ -74,8 +79,10 @@ class VehicleSetEncoder(nn.Module):
     def forward(self, flat: Tensor | SparseRows) -> Tensor:
         if isinstance(flat, SparseRows):
             batch = flat.batch_size
-            sample, cell, channels = self._vehicles_of_rows(flat)
-            extra = self._extra_of_rows(flat) if self.extra_features else None
+            found = flat.vehicles
+            if found is None or found.geometry != self.geometry:
+                found = self._vehicles_of_rows(flat)
+            sample, cell, channels, extra = found.sample, found.cell, found.channels, found.extra
         else:
             rows, columns, width = self.grid_shape
             batch = flat.shape[0]
@@ -107,28 +114,15 @@ class VehicleSetEncoder(nn.Module):
         pooled = [pooled_sum, pooled_max] if extra is None else [pooled_sum, pooled_max, extra]
         return torch.cat(pooled, dim=1)
 
-    def _vehicles_of_rows(self, rows: SparseRows) -> tuple[Tensor, Tensor, Tensor]:
-        """(sample, cell, the cell's other channels) of every occupied cell, in the order
-        of the dense path: by sample, then cell. A cell's channels that are zero are not
-        stored; each is looked up by its key (row * features + index), which increases
-        along the rows."""
-        width = self.grid_shape[2]
-        row_ids = rows.row_ids()
-        keys = row_ids * rows.num_features + rows.indices
-        in_grid = rows.indices < self.grid_features
-        occupied = rows.indices % width == width - 1
-        occupied = torch.nonzero(occupied & (rows.values > 0) & in_grid)[:, 0]
-        wanted = keys[occupied, None] - (width - 1) + torch.arange(width - 1, device=keys.device)
-        found = torch.searchsorted(keys, wanted).clamp_(max=max(keys.numel() - 1, 0))
-        channels = torch.where(keys[found] == wanted, rows.values[found], 0.0)
-        return row_ids[occupied], rows.indices[occupied] // width, channels
-
-    def _extra_of_rows(self, rows: SparseRows) -> Tensor:
-        """The features after the grid, dense ``[batch, extra_features]`` (zeros where a
-        row stores none)."""
-        values = rows.values
-        extra = values.new_zeros(rows.batch_size, self.extra_features)
-        stored = torch.nonzero(rows.indices >= self.grid_features)[:, 0]
-        row_ids = rows.row_ids()[stored]
-        extra[row_ids, rows.indices[stored] - self.grid_features] = values[stored]
-        return extra
+    def _vehicles_of_rows(self, rows: SparseRows) -> GridVehicles:
+        """The vehicles of rows that do not carry them (found on the CPU, as the replay
+        buffer finds them, then moved to the rows' device)."""
+        counts = torch.diff(rows.offsets, append=rows.offsets.new_tensor([rows.indices.numel()]))
+        found = find_vehicles(
+            rows.indices.cpu().numpy(),
+            rows.values.detach().cpu().numpy(),
+            counts.cpu().numpy(),
+            rows.num_features,
+            self.geometry,
+        )
+        return found if rows.values.device.type == "cpu" else found.to(rows.values.device)
