@@ -502,6 +502,7 @@ def main() -> None:
         print(f"options: {options}")
 
     defaults = default_agent_fields()
+    budget = default_budget_fields()
 
     def config(**fields: object) -> DDPGConfig:
         return DDPGConfig(**{**defaults, **fields})
@@ -515,7 +516,7 @@ def main() -> None:
         )
         for name in precisions
     ]
-    default = config(**{**default_budget_fields(), **options})
+    default = config(**{**budget, **options})
     used = resolve_precision(default.precision, device)
     resolved = f" ({used})" if used != default.precision else ""
     learners.append(
@@ -525,7 +526,7 @@ def main() -> None:
     )
     for name, fields, route in variants:
         try:
-            variant = config(**{**default_budget_fields(), **options, **fields})
+            variant = config(**{**budget, **options, **fields})
         except ValueError as error:
             parser.error(f"--variant {name}: {error}")
         learners.append(

@@ -129,11 +129,14 @@ class _SparseStore:
                 torch.from_numpy(np.cumsum(per_feature) - per_feature),
                 len(slots),
             )
+        wide_indices = indices.astype(np.int64)
         found = None
         if vehicles is not None:
-            found = find_vehicles(indices, values, self.counts[slots], self.num_features, vehicles)
+            found = find_vehicles(
+                wide_indices, values, self.counts[slots], self.num_features, vehicles
+            )
         return SparseRows(
-            torch.from_numpy(indices.astype(np.int64)),
+            torch.from_numpy(wide_indices),
             torch.from_numpy(values),
             torch.from_numpy(offsets),
             self.num_features,
