@@ -317,6 +317,7 @@ def training_results(
             "collisions": state.collisions,
             "arrivals": state.arrivals,
             "collision_budget": collision_budget_state(settings, state),
+            "branches": state.branches or None,
             "dropped_clients": state.dropped_clients,
             "final_step_reward": float(step_rewards[-tail:].mean()) if len(step_rewards) else None,
             "final_step_reward_definition": (
