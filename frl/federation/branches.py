@@ -53,6 +53,26 @@ class BranchTally:
         return cls(BranchOutcomes(**data["brake"]), BranchOutcomes(**data["go"]))
 
 
+def branch_lines(tallies: dict[str, dict[str, dict[str, int]]]) -> list[str]:
+    """One line per branching vehicle, for the log: each kind's count and outcomes."""
+    lines = []
+    for vehicle, tally in tallies.items():
+        parts = []
+        for kind in ("brake", "go"):
+            counts = tally[kind]
+            share = {key: _share(counts[key], counts["branches"]) for key in counts}
+            parts.append(
+                f"{kind} {counts['branches']} (collided {share['collisions']}, arrived "
+                f"{share['arrivals']}; the car's own episode collided {share['own_collisions']})"
+            )
+        lines.append(f"{vehicle}: " + ", ".join(parts))
+    return lines
+
+
+def _share(count: int, total: int) -> str:
+    return f"{100 * count / total:.1f}%" if total else "-"
+
+
 class Brancher:
     """Decides where a vehicle branches, drives the branch, and restores the drive.
 
