@@ -128,8 +128,6 @@ class RunState:
     budget_rounds: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
     """Each vehicle's rounds as the collision budget counts them: episodes, collisions and
     the multiplier at the round's end (:func:`frl.federation.collision_budget.round_record`)."""
-    branches: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
-    """Each branching vehicle's counterfactual branches so far (``agent.branches``)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

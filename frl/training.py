@@ -22,7 +22,6 @@ from frl.agents.config import DDPGConfig
 from frl.agents.precision import precision_report
 from frl.envs.config import traffic_name
 from frl.federation.assembly import client_specs, round_tester, worker_processes, worker_threads
-from frl.federation.branches import branch_lines
 from frl.federation.client_pool import ProcessClientPool
 from frl.federation.collision_budget import budget_end_state, budget_lines
 from frl.federation.coordinator import run_logged
@@ -124,16 +123,6 @@ def train(
             "and a Lagrange multiplier per vehicle; agent.collision_budget=null: none)",
             settings.agent.collision_budget,
         )
-    branches = settings.agent.branches
-    if branches.enabled:
-        log.info(
-            "counterfactual branches: chance %g a step from %g m before the stop line to %g m "
-            "past it, the opposite action held %d steps (agent.branches)",
-            branches.probability,
-            branches.before_line_m,
-            branches.past_line_m,
-            branches.hold_steps,
-        )
 
     run_dir.mkdir(parents=True, exist_ok=True)
     OmegaConf.save(OmegaConf.create(to_save), run_dir / rundir.CONFIG_FILE)
@@ -152,8 +141,6 @@ def train(
     results = training_results(settings, state, run_dir, run_versions)
     for line in budget_lines(results["training"]["collision_budget"] or {}):
         log.info("collision budget, %s", line)
-    for line in branch_lines(results["training"]["branches"] or {}):
-        log.info("branches, %s", line)
     previous = rundir.read_results(run_dir)
     if previous is not None and "evaluation" in previous:  # keep an earlier evaluation
         results["evaluation"] = previous["evaluation"]
@@ -330,7 +317,6 @@ def training_results(
             "collisions": state.collisions,
             "arrivals": state.arrivals,
             "collision_budget": collision_budget_state(settings, state),
-            "branches": state.branches or None,
             "dropped_clients": state.dropped_clients,
             "final_step_reward": float(step_rewards[-tail:].mean()) if len(step_rewards) else None,
             "final_step_reward_definition": (

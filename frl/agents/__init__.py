@@ -1,7 +1,7 @@
 """DDPG agent for gymnasium Box spaces: ``from frl.agents import DDPG, DDPGConfig``."""
 
 from frl.agents.checkpoint import CheckpointError
-from frl.agents.config import BranchConfig, CriticConfig, DDPGConfig, NoiseConfig, SparseConfig
+from frl.agents.config import CriticConfig, DDPGConfig, NoiseConfig, SparseConfig
 from frl.agents.ddpg import DDPG
 from frl.agents.federated import is_target_key
 from frl.agents.functional import discounted_returns, hard_update, soft_update, td_target
@@ -16,7 +16,6 @@ __all__ = [
     "Actor",
     "ActorCritic",
     "Batch",
-    "BranchConfig",
     "CheckpointError",
     "Critic",
     "CriticConfig",

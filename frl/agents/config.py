@@ -54,7 +54,7 @@ def _is_int(value: object) -> bool:
 POSITIVE_INTS = (
     "buffer_size", "n_step", "batch_size", "train_freq",
     "sparse.min_features", "sparse.capacity", "encoder_width", "critic.quantiles",
-    "lagrange_window", "branches.hold_steps",
+    "lagrange_window",
 )  # fmt: skip
 _ANY: Callable[[float], bool] = math.isfinite
 RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] = {
@@ -68,9 +68,6 @@ RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] 
     "warmup_hold_steps": (lambda v: v >= 1, _ANY, "be >= 1 and finite"),
     "guide_weight": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
     "critic.cvar_alpha": (lambda v: v > 0, lambda v: v <= 1, "lie in (0, 1]"),
-    "branches.probability": (lambda v: v >= 0, lambda v: v <= 1, "lie in [0, 1]"),
-    "branches.before_line_m": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
-    "branches.past_line_m": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
 }
 """Numeric fields (a group's as ``group.field``): (lower check, upper check, what the
 message says). NaN fails both."""
@@ -152,50 +149,7 @@ class CriticConfig:
             )
 
 
-@dataclass(frozen=True)
-class BranchConfig:
-    """Counterfactual branches at the entry decision (``agent.branches.*``).
-
-    On a step where the exploring car is near the stop line, a vehicle
-    (:class:`frl.federation.client.VehicleClient`) saves its simulation, drives the
-    opposite of the action it chose (a brake where it went, full throttle where it braked)
-    for ``hold_steps`` steps, then its exploring policy to the episode's end, stores that
-    branch's transitions in the replay buffer, and puts the simulation back to drive on as
-    if nothing had happened (:mod:`frl.federation.branches`). The critics then see, from
-    the same state, what waiting and going led to, where the car's own driving shows only
-    one of the two. Branch steps add data, not updates, and the collision budget counts
-    the car's own episodes alone. With branches on, every training episode starts a
-    seeded simulation, so that a branch replays only its own episode."""
-
-    probability: float = 0.0
-    """Chance of branching on each step within the zone, at most once an episode; 0: off."""
-    before_line_m: float = 10.0
-    """The zone starts this many metres before the stop line (the ego starts 10 m before)."""
-    past_line_m: float = 5.0
-    """...and ends this many metres past it, where a brake waits inside the junction."""
-    hold_steps: int = 10
-    """Steps the opposite action is held before the policy drives the branch on."""
-
-    def __post_init__(self) -> None:
-        _check_fields(self, "branches")
-        if self.probability == 0:
-            for name in ("before_line_m", "past_line_m", "hold_steps"):
-                _require(
-                    getattr(self, name) == getattr(BranchConfig, name),
-                    f"branches.{name} tunes the branches: set branches.probability above 0 too",
-                )
-
-    @property
-    def enabled(self) -> bool:
-        return self.probability > 0
-
-
-GROUPS: dict[str, type] = {
-    "noise": NoiseConfig,
-    "sparse": SparseConfig,
-    "critic": CriticConfig,
-    "branches": BranchConfig,
-}
+GROUPS: dict[str, type] = {"noise": NoiseConfig, "sparse": SparseConfig, "critic": CriticConfig}
 """The nested option groups of :class:`DDPGConfig`, by field name."""
 
 FLAT_KEYS: dict[str, tuple[str, str]] = {
@@ -362,9 +316,6 @@ class DDPGConfig:
     head"). A budget saved before this field learned a separate critic, and loads as one."""
     critic: CriticConfig = field(default_factory=CriticConfig)
     """What the reward critic learns, and what of it the actor climbs."""
-    branches: BranchConfig = field(default_factory=BranchConfig)
-    """Counterfactual branches at the entry decision, which frl's vehicles drive (off by
-    default; :meth:`frl.agents.DDPG.learn` refuses them)."""
 
     def __post_init__(self) -> None:
         hidden = tuple(self.hidden_sizes)

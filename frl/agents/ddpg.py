@@ -12,7 +12,7 @@ left here is the algorithm: observe, and the update, :meth:`DDPG._train_step`.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -41,7 +41,7 @@ from frl.agents.observations import ObservationLayout
 from frl.agents.precision import autocast, resolve_precision
 from frl.agents.replay_buffer import Batch, ReplayBuffer
 from frl.agents.sparse_linear import SparseRows
-from frl.agents.transitions import ObservedStep, Teacher, TransitionWriter
+from frl.agents.transitions import Teacher, TransitionWriter
 
 Path = str | os.PathLike[str]
 
@@ -178,20 +178,6 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             self.constraint.observe_cost(cost)
         if terminated:
             self._end_training_episode()
-
-    def observe_branch(self, steps: Sequence[ObservedStep]) -> None:
-        """Store a counterfactual branch (:mod:`frl.federation.branches`): steps driven
-        from a saved state and then undone. They go through n-step returns of their own,
-        bootstrapping where the branch was cut off, and count neither as environment
-        steps (updates stay where the car's own driving puts them) nor for the budget."""
-        writer = TransitionWriter(self.buffer, self.config.n_step, self.config.gamma, self.teacher)
-        for obs, action, reward, next_obs, terminated, cost in steps:
-            writer.write(
-                self.layout.flat(obs), self.scale.to_unit(action), float(reward),
-                self.layout.flat(next_obs), bool(terminated),
-                float(cost) if self.constraint is not None else 0.0,
-            )  # fmt: skip
-        writer.end_episode()
 
     def _end_training_episode(self) -> None:
         """The running episode ended: a collision budget counts it."""

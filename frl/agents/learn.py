@@ -54,12 +54,10 @@ class Step(NamedTuple):
     """The update's losses; empty where no update was due."""
 
 
-def training_step(agent: Learner, env: Any, obs: Any, action: np.ndarray | None = None) -> Step:
-    """Act with exploration (or drive ``action``, the explorer's already chosen), step
-    ``env``, observe the transition (with the step's cost, ``info["cost"]``, where the
-    environment reports one), update if due."""
-    if action is None:
-        action = agent.act(obs)
+def training_step(agent: Learner, env: Any, obs: Any) -> Step:
+    """Act with exploration, step ``env``, observe the transition (with the step's cost,
+    ``info["cost"]``, where the environment reports one), update if due."""
+    action = agent.act(obs)
     next_obs, reward, terminated, truncated, info = env.step(action)
     cost = float(info.get("cost", 0.0)) if isinstance(info, dict) else 0.0
     agent.observe(obs, action, float(reward), next_obs, terminated, cost=cost)
@@ -101,8 +99,7 @@ def learn(
     The returns of finished episodes are appended to ``agent.episode_returns``.
 
     Raises:
-        ValueError: a non-positive budget, spaces that do not match the agent's, or an
-            agent with counterfactual branches (``DDPGConfig.branches``).
+        ValueError: a non-positive budget, or spaces that do not match the agent's.
         RuntimeError: a guided agent (``DDPGConfig.guide``) without its teacher
             (:meth:`frl.agents.DDPG.set_guide`).
     """
@@ -115,13 +112,6 @@ def learn(
         raise RuntimeError(
             f"this agent learns from a teacher (guide={agent.config.guide!r}): install it "
             "first, agent.set_guide(policy), or frl.policies.install_guide(agent, env.config)"
-        )
-    branches = getattr(getattr(agent, "config", None), "branches", None)
-    if branches is not None and branches.enabled:
-        raise ValueError(
-            "branches.probability: counterfactual branches are driven by frl's vehicles "
-            "(python -m frl.train), which restart a seeded simulation every episode; "
-            "learn() keeps one simulation running"
         )
     if seed is None and agent.learn_calls == 0:
         seed = agent.seed

@@ -9,7 +9,7 @@ it enters the replay buffer.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -17,18 +17,6 @@ from frl.agents.acting import ActionScale
 from frl.agents.n_step import NStepAccumulator
 from frl.agents.observations import ObservationLayout
 from frl.agents.replay_buffer import ReplayBuffer
-
-
-class ObservedStep(NamedTuple):
-    """One environment step as the environment gave it (a counterfactual branch's)."""
-
-    obs: Any
-    action: np.ndarray
-    """The env action driven."""
-    reward: float
-    next_obs: Any
-    terminated: bool
-    cost: float = 0.0
 
 
 class Teacher:

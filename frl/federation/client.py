@@ -27,7 +27,6 @@ from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
 from frl.agents.learn import training_step
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
-from frl.federation.branches import Brancher
 from frl.federation.vehicle_snapshot import (
     VehicleSnapshot,
     read_vehicle_snapshot,
@@ -115,9 +114,6 @@ class LocalUpdate:
     """CPU seconds the vehicle's process spent on this round (for the timing benchmarks)."""
     wall_time_s: float = 0.0
     """Wall seconds of this round's local training on the vehicle."""
-    branches: dict[str, dict[str, int]] | None = None
-    """The vehicle's counterfactual branches since the run began
-    (:class:`frl.federation.branches.BranchTally`); None where it does not branch."""
 
 
 ProgressCallback = Callable[..., None]
@@ -146,9 +142,6 @@ class VehicleClient:
         install_guide(self.agent, self.env.config)
         if spec.proximal_mu:
             self.agent.set_proximal_anchor(spec.proximal_mu)
-        branches = spec.agent.branches
-        self.brancher = Brancher(branches, spec.agent_seed) if branches.enabled else None
-        """Counterfactual branches (``agent.branches``); None where off."""
         self._observation: np.ndarray | None = None
         self._restarts = 0
         """SUMO (re)starts so far; the next start uses ``training_sumo_seed(env_seed, n)``."""
@@ -194,11 +187,7 @@ class VehicleClient:
             if self._observation is None:
                 self._start_episode()
             observation = self._observation
-            chosen = None
-            if self.brancher is not None and self.brancher.due(env, agent):
-                chosen = agent.act(observation)
-                self.brancher.branch(env, agent, observation, chosen)
-            step = training_step(agent, env, observation, chosen)
+            step = training_step(agent, env, observation)
             action, reward, info = step.action, step.reward, step.info
             next_observation, terminated, truncated = step.next_obs, step.terminated, step.truncated
             actions["executed"][i] = action[0]
@@ -235,10 +224,6 @@ class VehicleClient:
                 self._episodes_total += 1
                 self._last_return = episode_return
                 self._observation = None
-                if self.brancher is not None:
-                    self.brancher.episode_end(bool(info["collision"]))
-                    # A branch replays its episode from the simulation's start: keep that short.
-                    self._needs_restart = True
             else:
                 self._observation = next_observation
             if progress is not None and (ended or (i + 1) % PROGRESS_EVERY_STEPS == 0):
@@ -259,7 +244,6 @@ class VehicleClient:
             parameters=self.get_parameters(include_targets) if upload else None,
             cpu_time_s=time.process_time() - cpu_started,
             wall_time_s=time.perf_counter() - wall_started,
-            branches=None if self.brancher is None else self.brancher.tally.to_dict(),
         )
 
     def _start_episode(self) -> None:
@@ -275,8 +259,6 @@ class VehicleClient:
         self._episode_rewards = []
         self._episode_speeds = []
         self.agent.episode_start()
-        if self.brancher is not None:
-            self.brancher.episode_start()
 
     def _critic_bias(self) -> float:
         """Mean Q(s_t, a_t) - G_t over the episode that just terminated (critic bias)."""
@@ -340,8 +322,7 @@ class VehicleClient:
                 "episodes_total": self._episodes_total,
                 "last_return": self._last_return,
                 "num_env_steps": self.agent.num_env_steps,
-            }
-            | ({} if self.brancher is None else {"branches": self.brancher.state_dict()}),
+            },
         )
 
     def load(self, directory: str | os.PathLike[str]) -> bool:
@@ -359,8 +340,6 @@ class VehicleClient:
         self._restarts = int(state["restarts"])
         self._episodes_total = int(state["episodes_total"])
         self._last_return = state["last_return"]
-        if self.brancher is not None:
-            self.brancher.load_state_dict(state["branches"])
         path = snapshot_path(directory, self.name)
         if not path.exists():
             self._observation = None

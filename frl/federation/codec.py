@@ -81,7 +81,6 @@ def update_to_parts(update: LocalUpdate) -> tuple[Arrays | None, Arrays, dict[st
         "cpu_time_s": update.cpu_time_s,
         "wall_time_s": update.wall_time_s,
         "episodes": [dataclasses.asdict(e) for e in update.episodes],
-        "branches": update.branches,
     }
     return parameters, series, summary
 
@@ -105,5 +104,4 @@ def update_from_parts(
         parameters=None if parameters is None else arrays_to_tensors(parameters),
         cpu_time_s=float(summary["cpu_time_s"]),
         wall_time_s=float(summary.get("wall_time_s", 0.0)),
-        branches=summary.get("branches"),
     )

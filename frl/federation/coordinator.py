@@ -415,8 +415,6 @@ def _count_episodes(state: RunState, updates: list[LocalUpdate]) -> None:
                 update.losses.get("collision_rate"),
             )
         )
-        if update.branches is not None:
-            state.branches[name] = update.branches
         if update.episodes:
             state.last_returns[name] = update.episodes[-1].episode_return
             window = state.recent_returns.get(name, []) + [
