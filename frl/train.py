@@ -17,6 +17,7 @@ and exit code 2, before anything runs.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import sys
 import traceback
@@ -139,11 +140,18 @@ def without_retired_overrides(argv: list[str]) -> list[str]:
         key, equals, value = arg.lstrip("+").partition("=")
         group, _, name = key.partition(".")
         retired = RETIRED_BY_GROUP.get(group, {})
-        if not equals or name not in retired:
+        head, _, member = name.partition(".")
+        if not equals or head not in retired:
             kept.append(arg)
             continue
         parsed = yaml.safe_load(value) if value else None
-        without_retired({name: parsed}, retired, group)  # raises unless it is the off value
+        if member:  # one key of a retired group: its off value is that key's in the group's
+            option = retired[head]
+            off = option.off.get(member) if isinstance(option.off, dict) else None
+            member_option = dataclasses.replace(option, off=off)
+            without_retired({name: parsed}, {name: member_option}, group)
+        else:
+            without_retired({name: parsed}, retired, group)  # raises unless it is off
     return kept
 
 

@@ -38,6 +38,7 @@ ON = {
     "random_warmup": False,
     "average_multiplier": True,
     "budget_noise_free_every": 4,
+    "branches": {"probability": 0.1, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10},
 }
 CONTEXT = {
     "guide_filter": {"guide": "gap_acceptance", "guide_weight": 1.0},
@@ -94,6 +95,17 @@ def test_a_command_line_override_at_the_off_value_is_dropped_and_any_other_refus
     assert without_retired_overrides(argv) == ["seed=1", "agent.tau=0.01"]
     with pytest.raises(RetiredOptionError, match="policy_delay"):
         without_retired_overrides(["agent.policy_delay=2"])
+
+
+def test_a_key_of_a_retired_group_is_dropped_at_its_off_value_and_refused_at_any_other():
+    from frl.train import without_retired_overrides
+
+    off = ["agent.branches.probability=0", "agent.branches.hold_steps=10", "seed=2"]
+    assert without_retired_overrides(off) == ["seed=2"]
+    with pytest.raises(RetiredOptionError, match=r"agent\.branches\.probability=0\.1 was retired"):
+        without_retired_overrides(["agent.branches.probability=0.1"])
+    saved = migrate_saved_config({"agent": {"branches": dict(RETIRED_OPTIONS["branches"].off)}})
+    assert "branches" not in saved["agent"]
 
 
 def test_a_q_filter_without_an_imitation_term_did_nothing_and_loads():
