@@ -35,7 +35,7 @@ from frl.agents.functional import (
     soft_update,
 )
 from frl.agents.guide import imitation_loss
-from frl.agents.learn import LearnCallback, learn
+from frl.agents.learn import LearnCallback, learn, read_losses
 from frl.agents.networks import build_actor_critic, make_adam
 from frl.agents.observations import ObservationLayout
 from frl.agents.precision import autocast, resolve_precision
@@ -188,6 +188,11 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
     def update(self) -> dict[str, float]:
         """One update if due (``learning_starts`` transitions observed, a batch in the
         buffer, ``num_env_steps`` a multiple of ``train_freq``): its losses, or ``{}``."""
+        return read_losses([self.update_unread()])[0]
+
+    def update_unread(self) -> dict[str, Tensor | float]:
+        """:meth:`update`, its losses left as tensors: reading one waits for the device, so
+        a training loop reads a window's at once (:func:`frl.agents.learn.read_losses`)."""
         cfg = self.config
         if (
             self.num_env_steps < cfg.learning_starts
@@ -197,9 +202,8 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             return {}
         slots = self.buffer.sample_slots(cfg.batch_size)
         batch = self.buffer.gather(slots, self.sparse, self.device, cfg.encoder == "flat")
-        stats = self._train_step(batch)
+        losses: dict[str, Tensor | float] = dict(self._train_step(batch))
         self.num_updates += 1
-        losses = {name: value.item() for name, value in stats.items()}
         if self.constraint is not None:
             losses.update(self.constraint.stats())
         return losses

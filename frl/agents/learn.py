@@ -10,10 +10,11 @@ vehicles (frl.federation.client) run the same step.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple, Protocol, TypeVar
 
 import numpy as np
+import torch
 
 EPISODE_WINDOW = 100
 """Episodes in ``rollout/ep_rew_mean`` and ``ep_len_mean`` (Stable-Baselines3's window)."""
@@ -38,6 +39,7 @@ class Learner(Protocol):
         cost: float = 0.0,
     ) -> None: ...  # fmt: skip
     def update(self) -> dict[str, float]: ...
+    def update_unread(self) -> Mapping[str, Any]: ...
     def episode_start(self) -> None: ...
 
 
@@ -50,8 +52,9 @@ class Step(NamedTuple):
     terminated: bool
     truncated: bool
     info: dict[str, Any]
-    losses: dict[str, float]
-    """The update's losses; empty where no update was due."""
+    losses: Mapping[str, Any]
+    """The update's losses, unread (tensors or floats: :func:`read_losses`); empty where
+    no update was due."""
 
 
 def training_step(agent: Learner, env: Any, obs: Any) -> Step:
@@ -61,7 +64,23 @@ def training_step(agent: Learner, env: Any, obs: Any) -> Step:
     next_obs, reward, terminated, truncated, info = env.step(action)
     cost = float(info.get("cost", 0.0)) if isinstance(info, dict) else 0.0
     agent.observe(obs, action, float(reward), next_obs, terminated, cost=cost)
-    return Step(action, next_obs, float(reward), terminated, truncated, info, agent.update())
+    losses = agent.update_unread()
+    return Step(action, next_obs, float(reward), terminated, truncated, info, losses)
+
+
+def read_losses(steps: Sequence[Mapping[str, Any]]) -> list[dict[str, float]]:
+    """The losses of several updates as floats, their tensors read in one go: a read
+    waits for the device, once here rather than once a loss and an update."""
+    tensors = [v for losses in steps for v in losses.values() if isinstance(v, torch.Tensor)]
+    # float() is exact for every loss dtype (float32, bf16): the values are .item()'s.
+    values = iter(torch.stack([t.float() for t in tensors]).tolist() if tensors else [])
+    return [
+        {
+            name: next(values) if isinstance(v, torch.Tensor) else float(v)
+            for name, v in step.items()
+        }
+        for step in steps
+    ]
 
 
 AgentT = TypeVar("AgentT", bound=Learner)
@@ -119,7 +138,7 @@ def learn(
     from tqdm.auto import tqdm
 
     bar = tqdm(total=int(total_timesteps), unit="step", disable=not progress_bar)
-    losses: dict[str, list[float]] = {}
+    window: list[Mapping[str, Any]] = []
     try:
         obs, _ = env.reset(seed=seed)
         agent.learn_calls += 1
@@ -127,15 +146,19 @@ def learn(
         episode_return, episode_steps = 0.0, 0
         for step in range(1, int(total_timesteps) + 1):
             step_done = training_step(agent, env, obs)
-            for name, value in step_done.losses.items():
-                losses.setdefault(name, []).append(value)
+            if step_done.losses and writer is not None:
+                window.append(step_done.losses)
             obs = step_done.next_obs
             episode_return += step_done.reward
             episode_steps += 1
             if writer is not None and agent.num_env_steps % LOSS_WINDOW == 0:
+                losses: dict[str, list[float]] = {}
+                for read in read_losses(window):
+                    for name, value in read.items():
+                        losses.setdefault(name, []).append(value)
                 for name, values in losses.items():
                     writer.add_scalar(f"train/{name}", float(np.mean(values)), agent.num_env_steps)
-                losses.clear()
+                window.clear()
             if step_done.terminated or step_done.truncated:
                 agent.episode_returns.append(episode_return)
                 agent.episode_lengths.append(episode_steps)

@@ -15,16 +15,17 @@ import dataclasses
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 from torch import Tensor
 
 from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
-from frl.agents.learn import training_step
+from frl.agents.learn import read_losses, training_step
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
 from frl.federation.vehicle_snapshot import (
@@ -183,6 +184,7 @@ class VehicleClient:
         losses = {name: np.full(num_steps, np.nan, np.float32) for name in LOSS_NAMES}
         actions = {name: np.empty(num_steps, np.float32) for name in ACTION_SERIES}
         episodes: list[EpisodeRecord] = []
+        updates: list[tuple[int, Mapping[str, Any]]] = []  # read once, at the round's end
         for i in range(num_steps):
             if self._observation is None:
                 self._start_episode()
@@ -192,9 +194,8 @@ class VehicleClient:
             next_observation, terminated, truncated = step.next_obs, step.terminated, step.truncated
             actions["executed"][i] = action[0]
             actions["policy"][i] = agent.last_policy_action[0]
-            for name, value in step.losses.items():
-                if name in losses:
-                    losses[name][i] = value
+            if step.losses:
+                updates.append((i, step.losses))
             rewards[i] = reward
             self._episode_observations.append(observation)
             self._episode_actions.append(action)
@@ -233,6 +234,10 @@ class VehicleClient:
                     episodes=self._episodes_total,
                     last_return=self._last_return,
                 )
+        for (i, _), read in zip(updates, read_losses([u for _, u in updates]), strict=True):
+            for name, value in read.items():
+                if name in losses:
+                    losses[name][i] = value
         return LocalUpdate(
             client=self.name,
             num_steps=num_steps,
