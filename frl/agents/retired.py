@@ -22,7 +22,7 @@ _KEEPABLE_BUDGET = '"A budget the car can keep"'
 _KEEPABLE_BUDGET_COMMIT = "f5359cd"
 _BRANCHES = '"Counterfactual branches at the entry decision"'
 _BRANCHES_COMMIT = "5f21138"
-BRANCHES_OFF = {"probability": 0.0, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10}
+_BRANCHES_OFF = {"probability": 0.0, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10}
 """The ``agent.branches`` group as every config and checkpoint wrote it with branches off."""
 
 RETIRED_OPTIONS: dict[str, RetiredOption] = {
@@ -47,7 +47,7 @@ RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "random_warmup": RetiredOption(True, None, _THIRD_COMMIT),
     "average_multiplier": RetiredOption(False, _BUDGET, _BUDGET_COMMIT),
     "budget_noise_free_every": RetiredOption(0, _KEEPABLE_BUDGET, _KEEPABLE_BUDGET_COMMIT),
-    "branches": RetiredOption(BRANCHES_OFF, _BRANCHES, _BRANCHES_COMMIT),
+    "branches": RetiredOption(_BRANCHES_OFF, _BRANCHES, _BRANCHES_COMMIT),
 }
 """Each retired key, with its off value and its study."""
 
