@@ -103,7 +103,12 @@ def test_a_sampled_batch_carries_its_vehicles_and_they_encode_as_the_grids_do() 
     dense = torch.cat([grids[i] for i in (0, 1, 2, 3, 2)])
     for rows in (batch.obs, batch.next_obs):
         assert rows.vehicles is not None and rows.vehicles.geometry == module.geometry
-    assert batch.obs.vehicles.sample.tolist() == [0, 0, 2, 2, 3, 4, 4]
+    # Each grid's vehicles fill its first slots, in cell order; 8 slots for at most 2.
+    found = batch.obs.vehicles
+    assert found.present.shape == (5, 8)
+    assert found.present.sum(dim=1).tolist() == [2, 0, 2, 1, 2]
+    assert found.cell[0, :2].tolist() == [2 * 18 + 4, 20 * 18 + 9]
+    assert found.cell[1].tolist() == [0] * 8 and found.channels[1].abs().sum() == 0
     assert torch.equal(module(batch.obs), module(dense))
     assert torch.equal(module(batch.obs), module(batch.obs._replace(vehicles=None)))
     # Vehicles found for another grid are not used: this encoder finds its own.

@@ -27,6 +27,7 @@ import torch.nn.functional as F
 from gymnasium import spaces
 from torch import Tensor
 
+from frl.agents.grid_vehicles import slots_for
 from frl.agents.networks import Actor
 from frl.agents.sparse_linear import SparseRows
 from frl.agents.vehicle_encoder import VehicleSetEncoder
@@ -81,22 +82,25 @@ def encode_one(encoder: VehicleSetEncoder, flat: np.ndarray, device: torch.devic
     rows, columns, channels = encoder.grid_shape
     grid = flat[: encoder.grid_features].reshape(rows * columns, channels)
     cells = np.flatnonzero(grid[:, -1] > 0)
+    # The vehicles in slots, as the encoder lays out a batch of one (the matrix products
+    # give the same numbers only on the same shapes).
+    slots = slots_for(cells.size)
+    vehicles = np.zeros((slots, 2 + channels - 1), np.float32)
+    vehicles[: cells.size, :2] = encoder.positions.cpu().numpy()[cells]
     # + 0 turns a stored -0.0 into 0.0, as the compressed rows (which drop it) would.
-    features = grid[cells, :-1] + np.float32(0.0)
-    positions = encoder.positions
-    if positions.device.type != "cpu":
-        cell = torch.from_numpy(cells).to(device)
-        vehicles = torch.cat([positions[cell], torch.from_numpy(features).to(device)], dim=1)
-        sample = torch.zeros(cells.size, dtype=torch.int64, device=device)
+    vehicles[: cells.size, 2:] = grid[cells, :-1] + np.float32(0.0)
+    if encoder.positions.device.type != "cpu":
         extra = None
         if encoder.extra_features:
             extra = torch.from_numpy(flat[encoder.grid_features :].reshape(1, -1)).to(device)
-        return encoder.pool(vehicles, sample, 1, extra)
+        present = torch.arange(slots, device=device) < cells.size
+        rows = torch.from_numpy(vehicles).to(device)[None]
+        return encoder.pool(encoder.embed(rows), present[None], extra)
     # On the CPU the vehicles go through the encoder's own MLP and the pooling is done in
     # NumPy: a dozen torch calls fewer. The numbers are the encoder's: a sum over axis 0
-    # from zero adds the vehicles in order, as ``index_add_`` does, and a max is exact.
-    vehicles = torch.from_numpy(np.concatenate([positions.numpy()[cells], features], axis=1))
-    vehicles_out = encoder.embed(vehicles).detach().numpy()
+    # from zero adds the vehicles in order, as the encoder's sum over a grid's slots does,
+    # and a max is exact.
+    vehicles_out = encoder.embed(torch.from_numpy(vehicles)).detach().numpy()[: cells.size]
     pooled = [
         np.add.reduce(vehicles_out, axis=0, initial=0.0),
         np.maximum.reduce(vehicles_out, axis=0, initial=0.0),

@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from frl.agents.grid_vehicles import GridVehicles, find_vehicles
+from frl.agents.grid_vehicles import GridVehicles, find_vehicles, slots_for
 from frl.agents.sparse_linear import SparseRows
 
 
@@ -78,41 +78,55 @@ class VehicleSetEncoder(nn.Module):
 
     def forward(self, flat: Tensor | SparseRows) -> Tensor:
         if isinstance(flat, SparseRows):
-            batch = flat.batch_size
             found = flat.vehicles
             if found is None or found.geometry != self.geometry:
                 found = self._vehicles_of_rows(flat)
-            sample, cell, channels, extra = found.sample, found.cell, found.channels, found.extra
-        else:
-            rows, columns, width = self.grid_shape
-            batch = flat.shape[0]
-            grid = flat[:, : self.grid_features].reshape(batch, rows * columns, width)
-            extra = flat[:, self.grid_features :] if self.extra_features else None
-            sample, cell = torch.nonzero(grid[..., -1] > 0, as_tuple=True)
-            channels = grid[sample, cell, :-1]
-        vehicles = torch.cat([self.positions[cell], channels], dim=1)
-        return self.pool(vehicles, sample, batch, extra)
+            return self.encode(found.cell, found.channels, found.present, found.extra)
+        batch = flat.shape[0]
+        grid = flat[:, : self.grid_features].reshape(batch, -1, self.grid_shape[2])
+        extra = flat[:, self.grid_features :] if self.extra_features else None
+        return self.encode(*self._vehicles_of_grids(grid), extra)
 
     def embed(self, vehicles: Tensor) -> Tensor:
-        """The shared per-vehicle MLP: ``[n, 2 + C - 1]`` -> ``[n, width]``, each >= 0."""
+        """The shared per-vehicle MLP: ``[..., 2 + C - 1]`` -> ``[..., width]``, each >= 0."""
         hidden = vehicles
         for layer in self.layers:
             hidden = torch.relu(F.linear(hidden, layer.weight, layer.bias))
         return hidden
 
-    def pool(self, vehicles: Tensor, sample: Tensor, batch: int, extra: Tensor | None) -> Tensor:
-        """The encoding of ``batch`` observations from their ``vehicles`` ``[n, 2 + C - 1]``
-        (position, then channels), ``sample`` ``[n]`` naming each one's observation, and
-        the features after the grid (``extra``, or None without any)."""
-        hidden = self.embed(vehicles)
-        pooled_sum = hidden.new_zeros(batch, self.width).index_add_(0, sample, hidden)
-        # ReLU outputs are >= 0, so a max that includes the zero start is the vehicles' max
-        # (and 0 for an observation without any vehicle).
-        pooled_max = hidden.new_zeros(batch, self.width).scatter_reduce_(
-            0, sample[:, None].expand_as(hidden), hidden, "amax", include_self=True
+    def encode(
+        self, cell: Tensor, channels: Tensor, present: Tensor, extra: Tensor | None
+    ) -> Tensor:
+        """The encoding of a batch from its vehicles in slots (:class:`GridVehicles`'
+        ``cell`` [batch, slots], ``channels`` [batch, slots, C - 1] and ``present``
+        [batch, slots]) and the features after the grid (``extra``, or None)."""
+        return self.pool(
+            self.embed(torch.cat([self.positions[cell], channels], dim=-1)), present, extra
         )
-        pooled = [pooled_sum, pooled_max] if extra is None else [pooled_sum, pooled_max, extra]
-        return torch.cat(pooled, dim=1)
+
+    def pool(self, hidden: Tensor, present: Tensor, extra: Tensor | None) -> Tensor:
+        """The sum and the max of the embedded vehicles ``hidden`` [batch, slots, width]
+        over the slots that ``present`` marks, then ``extra``."""
+        # ReLU outputs are >= 0, so zeroing the padding leaves the vehicles' sum and max
+        # (and 0 for an observation without any vehicle).
+        hidden = hidden * present.unsqueeze(-1).to(hidden.dtype)
+        pooled = [hidden.sum(dim=1), hidden.amax(dim=1)]
+        return torch.cat(pooled if extra is None else [*pooled, extra], dim=1)
+
+    def _vehicles_of_grids(self, grid: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """``(cell, channels, present)`` of dense grids ``[batch, cells, C]``, as
+        :func:`find_vehicles` lays them out."""
+        occupied = grid[..., -1] > 0
+        counts = occupied.sum(dim=1)
+        slots = slots_for(int(counts.max()) if counts.numel() else 0)
+        # A stable sort puts each grid's occupied cells first, in cell order.
+        order = torch.argsort((~occupied).to(torch.uint8), dim=1, stable=True)[:, :slots]
+        present = torch.arange(slots, device=grid.device) < counts[:, None]
+        cell = F.pad(order, (0, slots - order.shape[1])) * present
+        channels = torch.gather(
+            grid[..., :-1], 1, cell.unsqueeze(-1).expand(-1, -1, grid.shape[2] - 1)
+        )
+        return cell, channels * present.unsqueeze(-1), present.to(grid.dtype)
 
     def _vehicles_of_rows(self, rows: SparseRows) -> GridVehicles:
         """The vehicles of rows that do not carry them (found on the CPU, as the replay
