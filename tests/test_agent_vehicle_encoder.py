@@ -116,6 +116,31 @@ def test_a_sampled_batch_carries_its_vehicles_and_they_encode_as_the_grids_do() 
     assert torch.equal(module(other), module(batch.next_obs))
 
 
+def test_batches_take_a_fixed_number_of_slots_and_more_only_for_a_fuller_grid() -> None:
+    """Every batch whose grids show at most 8 vehicles is laid out in 8 slots, whatever
+    its vehicle count; a fuller grid widens that batch to 16 slots and loses no vehicle,
+    and the padding changes no encoding."""
+    module = encoder(width=16)
+    few = torch.cat([grid_with((2, 4, 0.5, 1.0)), grid_with()])
+    some = torch.cat([grid_with(*[(row, 3, 0.1 * row, 1.0) for row in range(8)]), grid_with()])
+    crowded = grid_with(*[(row, 5, 0.05 * row, -1.0) for row in range(11)])
+    for batch, slots in ((few, 8), (some, 8), (torch.cat([crowded, few]), 16)):
+        found = SparseRows.from_dense(batch)
+        found = module._vehicles_of_rows(found)
+        assert found.cell.shape == found.present.shape == (len(batch), slots)
+        assert found.channels.shape == (len(batch), slots, 2)
+        occupied = batch[:, : module.grid_features].reshape(len(batch), -1, 3)[..., -1] > 0
+        assert found.present.sum(dim=1).tolist() == occupied.sum(dim=1).tolist()
+    # The crowded grid encodes the same alone as beside others, and as the sum and max of
+    # its vehicles encoded one by one.
+    alone = module(crowded)
+    torch.testing.assert_close(module(torch.cat([crowded, few]))[:1], alone)
+    singles = torch.cat([module(grid_with((row, 5, 0.05 * row, -1.0))) for row in range(11)])
+    width = module.width
+    torch.testing.assert_close(alone[0, :width], singles[:, :width].sum(dim=0))
+    torch.testing.assert_close(alone[0, width:], singles[:, width:].amax(dim=0))
+
+
 def test_a_nearby_position_gives_a_nearby_encoding() -> None:
     """Positions are numbers, not one-hot inputs: the next cell over is close."""
     module = encoder(width=32)
