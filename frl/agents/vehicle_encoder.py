@@ -32,7 +32,8 @@ class VehicleSetEncoder(nn.Module):
     rows list their non-zeros in increasing feature order): the same vehicles, in the
     same order, from either. A sampled batch carries its vehicles, found once in NumPy by
     the replay buffer (:mod:`frl.agents.grid_vehicles`), so the five networks that read it
-    in an update do not each find them again.
+    in an update do not each find them again. Each grid's vehicles sit in a fixed number of
+    slots with a mask, so the shapes stay the same from batch to batch.
 
     Args:
         grid_shape: ``(H, W, C)``; the last channel is 1 in occupied cells, 0 elsewhere
