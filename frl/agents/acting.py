@@ -78,28 +78,22 @@ def _actor_input(
 
 
 def encode_one(encoder: VehicleSetEncoder, flat: np.ndarray, device: torch.device) -> Tensor:
-    """``encoder(flat[None])`` for one flat observation, its vehicles found in NumPy."""
+    """``encoder(flat[None])`` for one flat observation; on the CPU its vehicles are found
+    and pooled in NumPy."""
+    # + 0 turns a stored -0.0 into 0.0, as the compressed rows (which drop it) would.
+    if encoder.positions.device.type != "cpu":
+        return encoder(torch.from_numpy(flat[None] + np.float32(0.0)).to(device))
+    # On the CPU the vehicles go through the encoder's own MLP and the pooling is done in
+    # NumPy: a dozen torch calls fewer. The vehicles sit in slots, as the encoder lays out a
+    # batch of one (a matrix product gives the same numbers only on the same shape); a sum
+    # over axis 0 from zero adds them in order, as the encoder's sum over a grid's slots
+    # does, and a max is exact.
     rows, columns, channels = encoder.grid_shape
     grid = flat[: encoder.grid_features].reshape(rows * columns, channels)
     cells = np.flatnonzero(grid[:, -1] > 0)
-    # The vehicles in slots, as the encoder lays out a batch of one (the matrix products
-    # give the same numbers only on the same shapes).
-    slots = slots_for(cells.size)
-    vehicles = np.zeros((slots, 2 + channels - 1), np.float32)
-    vehicles[: cells.size, :2] = encoder.positions.cpu().numpy()[cells]
-    # + 0 turns a stored -0.0 into 0.0, as the compressed rows (which drop it) would.
+    vehicles = np.zeros((slots_for(cells.size), 2 + channels - 1), np.float32)
+    vehicles[: cells.size, :2] = encoder.positions.numpy()[cells]
     vehicles[: cells.size, 2:] = grid[cells, :-1] + np.float32(0.0)
-    if encoder.positions.device.type != "cpu":
-        extra = None
-        if encoder.extra_features:
-            extra = torch.from_numpy(flat[encoder.grid_features :].reshape(1, -1)).to(device)
-        present = torch.arange(slots, device=device) < cells.size
-        rows = torch.from_numpy(vehicles).to(device)[None]
-        return encoder.pool(encoder.embed(rows), present[None], extra)
-    # On the CPU the vehicles go through the encoder's own MLP and the pooling is done in
-    # NumPy: a dozen torch calls fewer. The numbers are the encoder's: a sum over axis 0
-    # from zero adds the vehicles in order, as the encoder's sum over a grid's slots does,
-    # and a max is exact.
     vehicles_out = encoder.embed(torch.from_numpy(vehicles)).detach().numpy()[: cells.size]
     pooled = [
         np.add.reduce(vehicles_out, axis=0, initial=0.0),
