@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import torch
 
-from frl.federation.workers import available_cores, retain_freed_memory
+from frl.federation.workers import available_cores, flush_denormals, retain_freed_memory
 
 
 def set_torch_threads(num_threads: int | None = None) -> int:
@@ -20,6 +20,8 @@ def set_torch_threads(num_threads: int | None = None) -> int:
 
 
 def configure_cpu_training(num_threads: int | None = None) -> int:
-    """:func:`retain_freed_memory` and :func:`set_torch_threads`; returns the thread count."""
+    """:func:`retain_freed_memory`, :func:`flush_denormals` and :func:`set_torch_threads`;
+    returns the thread count."""
     retain_freed_memory()
+    flush_denormals()
     return set_torch_threads(num_threads)

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from worker_helpers import BrokenAtStart, Echo
+from worker_helpers import BrokenAtStart, DenormalProbe, Echo
 
 from frl.federation import ClientFailure, WorkerPool, threads_per_worker
 
@@ -111,6 +111,13 @@ def test_keyboard_interrupt_in_the_parent_stops_the_workers():
         pids = pool.pids
         raise KeyboardInterrupt
     _assert_all_gone(pids)
+
+
+def test_workers_flush_denormals_on_every_thread():
+    # Adam's decayed running means are denormal, and slow to compute on; workers flush them.
+    with WorkerPool([("client0_left", DenormalProbe)], num_threads=2) as pool:
+        [(alone, many)] = pool.call("products")
+    assert (alone, many) == (0.0, 0.0)
 
 
 def test_threads_split_the_cores():

@@ -33,6 +33,19 @@ class Echo:
         return steps
 
 
+class DenormalProbe:
+    """Multiplies a denormal float by one, in this thread and in torch's other threads."""
+
+    def products(self) -> tuple[float, float]:
+        import torch
+
+        denormal = torch.finfo(torch.float32).tiny / 4
+        alone = (torch.tensor([denormal]) * 1.0).item()
+        # Large enough that torch splits it over its threads: every chunk must flush too.
+        many = torch.full((1 << 20,), denormal) * 1.0
+        return alone, float(many.abs().max())
+
+
 class BrokenAtStart:
     def __init__(self) -> None:
         raise SumoError("could not start SUMO (simulated)")

@@ -214,6 +214,20 @@ def worker_context() -> Any:
     return context
 
 
+def flush_denormals() -> bool:
+    """Flush denormal floats to zero on this thread and the threads it starts later.
+
+    Adam's running mean of a parameter whose gradient stays zero (a unit that never
+    fires) decays by 0.9 an update into the denormal range, where x86 arithmetic is many
+    times slower: it made the optimizer's step three times as slow in a vehicle's
+    training (docs/benchmarks.md, "Denormals"). Whether it is supported: False on CPUs
+    without the flags (the run is then as before, only slower).
+    """
+    import torch
+
+    return bool(torch.set_flush_denormal(True))
+
+
 def prepare_worker_process(num_threads: int) -> None:
     """Set up a freshly started client process: threads, memory reuse, signals, death
     with its parent.
@@ -229,6 +243,8 @@ def prepare_worker_process(num_threads: int) -> None:
     _exit_with_parent()
     import torch
 
+    # Before the first parallel operation, so that torch's intra-op threads inherit it.
+    flush_denormals()
     torch.set_num_threads(num_threads)
     with contextlib.suppress(RuntimeError):  # already set: harmless
         torch.set_num_interop_threads(1)
