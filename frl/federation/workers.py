@@ -219,7 +219,7 @@ def flush_denormals() -> bool:
 
     Adam's running mean of a parameter whose gradient stays zero (a unit that never
     fires) decays by 0.9 an update into the denormal range, where x86 arithmetic is many
-    times slower: it made the optimizer's step three times as slow in a vehicle's
+    times slower: it made the optimizer's step four times as slow in a vehicle's
     training (docs/benchmarks.md, "Denormals"). Whether it is supported: False on CPUs
     without the flags (the run is then as before, only slower).
     """
