@@ -113,6 +113,15 @@ def test_keyboard_interrupt_in_the_parent_stops_the_workers():
     _assert_all_gone(pids)
 
 
+def _can_flush_denormals() -> bool:
+    import torch
+
+    supported = torch.set_flush_denormal(True)
+    torch.set_flush_denormal(False)  # this process's default again
+    return supported
+
+
+@pytest.mark.skipif(not _can_flush_denormals(), reason="this CPU cannot flush denormals")
 def test_workers_flush_denormals_on_every_thread():
     # Adam's decayed running means are denormal, and slow to compute on; workers flush them.
     with WorkerPool([("client0_left", DenormalProbe)], num_threads=2) as pool:
