@@ -32,6 +32,9 @@ import torch
 from torch import nn
 from torch.func import functional_call, stack_module_state, vmap
 
+from frl.agents.networks import make_adam
+from frl.agents.precision import autocast
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from cpu_settings import configure_cpu_training
 
@@ -63,10 +66,6 @@ def loss_of(output: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (output.float() - target).square().mean()
 
 
-def autocast(device: torch.device, precision: str) -> torch.autocast:
-    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
-
-
 def make_inputs(count: int, device: torch.device, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
     generator = torch.Generator().manual_seed(seed)
     slots = torch.randn(count, BATCH, SLOTS, 4, generator=generator).to(device)
@@ -75,14 +74,11 @@ def make_inputs(count: int, device: torch.device, seed: int) -> tuple[torch.Tens
 
 
 class LoopedUpdates:
-    """One network and one fused Adam per vehicle, updated one after the other."""
+    """One network and one fused Adam (the agent's) per vehicle, updated one after the other."""
 
     def __init__(self, networks: list[nn.Module], device: torch.device, precision: str) -> None:
         self.networks = networks
-        fused = device.type in ("cpu", "cuda")
-        self.optimizers = [
-            torch.optim.Adam(net.parameters(), lr=1e-4, fused=fused) for net in networks
-        ]
+        self.optimizers = [make_adam(list(net.parameters()), 1e-4, device) for net in networks]
         self.device, self.precision = device, precision
 
     def step(self, slots: torch.Tensor, targets: torch.Tensor) -> list[torch.Tensor]:
@@ -106,8 +102,7 @@ class StackedUpdate:
         params, _ = stack_module_state(networks)
         self.params = {k: nn.Parameter(v.detach().clone()) for k, v in params.items()}
         self.template = copy.deepcopy(networks[0]).to("meta")
-        fused = device.type in ("cpu", "cuda")
-        self.optimizer = torch.optim.Adam(self.params.values(), lr=1e-4, fused=fused)
+        self.optimizer = make_adam(list(self.params.values()), 1e-4, device)
         self.device, self.precision = device, precision
 
         def one_vehicle(p: dict[str, torch.Tensor], x: torch.Tensor) -> torch.Tensor:

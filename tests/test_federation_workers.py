@@ -13,6 +13,7 @@ import pytest
 from worker_helpers import BrokenAtStart, DenormalProbe, Echo
 
 from frl.federation import ClientFailure, WorkerPool, threads_per_worker
+from frl.federation.workers import flush_denormals
 
 
 def _alive(pid: int) -> bool:
@@ -116,7 +117,7 @@ def test_keyboard_interrupt_in_the_parent_stops_the_workers():
 def _can_flush_denormals() -> bool:
     import torch
 
-    supported = torch.set_flush_denormal(True)
+    supported = flush_denormals()
     torch.set_flush_denormal(False)  # this process's default again
     return supported
 
