@@ -28,7 +28,7 @@ import yaml
 from omegaconf import DictConfig
 
 from frl.agents.config import GROUPS, flat_key_message
-from frl.agents.retired import RETIRED_OPTIONS
+from frl.agents.retired import RETIRED_OPTIONS, without_retired_critic
 from frl.envs.config import RETIRED_ENV_OPTIONS, RETIRED_REWARD_OPTIONS
 from frl.federation.workers import ClientFailure
 from frl.retirement import RetiredOptionError, without_retired
@@ -129,8 +129,8 @@ RETIRED_BY_GROUP = {
 
 
 def without_retired_overrides(argv: list[str]) -> list[str]:
-    """``argv`` less the overrides that set a retired agent, env or reward option to its
-    off value (:mod:`frl.retirement`), which change nothing.
+    """``argv`` less the overrides that set a retired agent (``agent.critic`` included),
+    env or reward option to its off value (:mod:`frl.retirement`), which change nothing.
 
     Raises:
         RetiredOptionError: an override that sets one to any other value.
@@ -138,6 +138,11 @@ def without_retired_overrides(argv: list[str]) -> list[str]:
     kept = []
     for arg in argv:
         key, equals, value = arg.lstrip("+").partition("=")
+        if equals and key.startswith("agent.critic."):
+            parsed_value = yaml.safe_load(value) if value else None
+            critic_option = {key.removeprefix("agent.critic."): parsed_value}
+            if not without_retired_critic(critic_option):  # a retired key at its off value
+                continue
         group, _, name = key.partition(".")
         retired = RETIRED_BY_GROUP.get(group, {})
         head, _, member = name.partition(".")

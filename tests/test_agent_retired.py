@@ -10,6 +10,7 @@ import torch
 from gymnasium import spaces
 
 from frl.agents import DDPG, CheckpointError, DDPGConfig
+from frl.agents.config import CriticConfig
 from frl.agents.retired import RETIRED_OPTIONS, RetiredOptionError
 from frl.train_config import ConfigError, migrate_saved_config
 
@@ -125,3 +126,40 @@ def test_a_q_filter_without_an_imitation_term_did_nothing_and_loads():
     assert without_retired_overrides(["agent.guide_filter=none"]) == []
     with pytest.raises(RetiredOptionError, match="guide_filter"):
         without_retired_overrides(["agent.guide_filter=q"])
+
+
+def test_the_ensemble_critic_is_refused_and_its_keys_load_at_their_off_values(tmp_path: Path):
+    from frl.agents.retired import RETIRED_CRITIC_KINDS, RETIRED_CRITIC_OPTIONS
+    from frl.train import without_retired_overrides
+
+    assert not {"heads", "disagreement_price"} & set(CriticConfig.__dataclass_fields__)
+    off = {key: option.off for key, option in RETIRED_CRITIC_OPTIONS.items()}
+    plain = DDPGConfig.from_dict({})
+    assert DDPGConfig.from_dict({"critic": {"kind": "expected", **off}}) == plain
+    with pytest.raises(RetiredOptionError) as refused:
+        DDPGConfig.from_dict({"critic": {"kind": "ensemble", **off}})
+    message = str(refused.value)
+    option = RETIRED_CRITIC_KINDS["ensemble"]
+    assert "\n" not in message and "agent.critic.kind='ensemble' was retired" in message
+    assert option.study in message and f"commit {option.commit}" in message
+    with pytest.raises(RetiredOptionError, match=r"agent\.critic\.heads=3 was retired"):
+        DDPGConfig.from_dict({"critic": {"heads": 3}})
+    # A checkpoint an ensemble agent wrote is refused; one with the keys at off loads.
+    agent = DDPG(GRID, ACCEL, DDPGConfig(**SMALL), seed=1)
+    agent.save(tmp_path / "agent.pt")
+    data = torch.load(tmp_path / "agent.pt", weights_only=True)
+    data["config"]["critic"].update(off)
+    torch.save(data, tmp_path / "off.pt")
+    assert DDPG.load(tmp_path / "off.pt").config == agent.config
+    data["config"]["critic"]["kind"] = "ensemble"
+    torch.save(data, tmp_path / "on.pt")
+    with pytest.raises(CheckpointError, match=r"agent\.critic\.kind='ensemble' was retired"):
+        DDPG.load(tmp_path / "on.pt")
+    # On the command line: the off values are dropped, the rest refused.
+    argv = ["agent.critic.heads=5", "agent.critic.disagreement_price=1"]
+    argv.append("agent.critic.kind=expected")
+    assert without_retired_overrides(argv) == ["agent.critic.kind=expected"]
+    with pytest.raises(RetiredOptionError, match=r"agent\.critic\.kind='ensemble' was retired"):
+        without_retired_overrides(["agent.critic.kind=ensemble"])
+    with pytest.raises(RetiredOptionError, match=r"agent\.critic\.disagreement_price=10"):
+        without_retired_overrides(["agent.critic.disagreement_price=10"])

@@ -8,13 +8,13 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from frl.agents.precision import PRECISIONS
-from frl.agents.retired import without_retired
+from frl.agents.retired import without_retired, without_retired_critic
 
 NOISE_KINDS: tuple[str, ...] = ("ou", "gaussian")
 ENCODERS: tuple[str, ...] = ("flat", "vehicles")
 ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
 GUIDES: tuple[str, ...] = ("none", "gap_acceptance", "committed_gap_acceptance")
-CRITICS: tuple[str, ...] = ("expected", "quantile", "ensemble")
+CRITICS: tuple[str, ...] = ("expected", "quantile")
 COST_CRITICS: tuple[str, ...] = ("separate", "head")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
@@ -39,6 +39,8 @@ def agent_fields_as_run(data: dict[str, Any]) -> dict[str, Any]:
     as_run = nested_fields({**FIELDS_ADDED_LATER, **data})
     if as_run.get("collision_budget") is not None:
         as_run.setdefault("cost_critic", "separate")  # budgets saved before the cost head
+    if isinstance(as_run.get("critic"), dict):
+        as_run["critic"] = without_retired_critic(as_run["critic"])
     return without_retired(as_run)
 
 
@@ -54,7 +56,7 @@ def _is_int(value: object) -> bool:
 POSITIVE_INTS = (
     "buffer_size", "n_step", "batch_size", "train_freq",
     "sparse.min_features", "sparse.capacity", "encoder_width", "critic.quantiles",
-    "critic.heads", "lagrange_window",
+    "lagrange_window",
 )  # fmt: skip
 _ANY: Callable[[float], bool] = math.isfinite
 RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] = {
@@ -68,7 +70,6 @@ RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] 
     "warmup_hold_steps": (lambda v: v >= 1, _ANY, "be >= 1 and finite"),
     "guide_weight": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
     "critic.cvar_alpha": (lambda v: v > 0, lambda v: v <= 1, "lie in (0, 1]"),
-    "critic.disagreement_price": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
 }
 """Numeric fields (a group's as ``group.field``): (lower check, upper check, what the
 message says). NaN fails both."""
@@ -130,29 +131,15 @@ class CriticConfig:
     kind: str = "expected"
     """``expected``, the mean return (DDPG), or ``quantile``, ``quantiles`` quantiles of the
     return (QR-DQN's quantile Huber loss), so that the actor can climb the CVaR of the
-    return at ``cvar_alpha``, or ``ensemble``, ``heads`` bootstrapped values whose spread
-    the actor pays ``disagreement_price`` for."""
+    return at ``cvar_alpha``."""
     quantiles: int = 32
     """Quantiles of the return a ``quantile`` critic learns."""
     cvar_alpha: float = 1.0
     """The actor climbs the mean of the worst ``cvar_alpha`` share of the return's quantiles
     (its CVaR); 1: the mean, as DDPG; below 1 needs ``critic.kind=quantile``."""
-    heads: int = 5
-    """Bootstrapped heads an ``ensemble`` critic learns (:mod:`frl.agents.ensemble`)."""
-    disagreement_price: float = 1.0
-    """An ``ensemble`` critic's actor climbs the heads' mean minus this many times their
-    standard deviation: a price on what the critic does not know."""
 
     def __post_init__(self) -> None:
         _check_fields(self, "critic")
-        if self.kind == "ensemble":
-            _require(self.heads >= 2, f"critic.heads must be at least 2, got {self.heads}")
-        else:
-            for name in ("heads", "disagreement_price"):
-                _require(
-                    getattr(self, name) == getattr(CriticConfig, name),
-                    f"critic.{name} is the ensemble critic's: set critic.kind=ensemble too",
-                )
         if self.kind != "quantile":
             _require(
                 self.quantiles == CriticConfig.quantiles,

@@ -25,12 +25,6 @@ from frl.agents.checkpoint import Checkpointing
 from frl.agents.config import DDPGConfig
 from frl.agents.constraint import CollisionConstraint
 from frl.agents.critic_readings import critic_values
-from frl.agents.ensemble import (
-    bootstrap_masks,
-    disagreement,
-    ensemble_critic_loss,
-    pessimistic_value,
-)
 from frl.agents.explorer import Explorer
 from frl.agents.federated import FederatedAgent
 from frl.agents.functional import (
@@ -92,8 +86,7 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         self.precision = resolve_precision(cfg.precision, self.device)
         """What updates compute in: ``float32`` or ``bf16`` (acting is always float32)."""
 
-        streams = np.random.SeedSequence(self.seed).spawn(5)
-        init_seq, noise_seq, buffer_seq, warmup_seq, masks_seq = streams
+        init_seq, noise_seq, buffer_seq, warmup_seq = np.random.SeedSequence(self.seed).spawn(4)
         if init_seed is not None:
             init_seq = np.random.SeedSequence(int(init_seed))
         init = torch.Generator().manual_seed(int(init_seq.generate_state(1, np.uint64)[0]))
@@ -121,12 +114,6 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             sparse_width=cfg.sparse.capacity, guided=cfg.guided, costed=cfg.costed,
             vehicle_geometry=None if encoder is None else encoder.geometry,
         )  # fmt: skip
-        self.head_masks = (
-            bootstrap_masks(masks_seq, cfg.buffer_size, cfg.critic.heads)
-            if cfg.critic.kind == "ensemble"
-            else None
-        )
-        """Which of an ensemble critic's heads learn from each buffer slot; None otherwise."""
         self.teacher = Teacher(cfg.guide, self.layout, self.scale) if cfg.guided else None
         self.writer = TransitionWriter(self.buffer, cfg.n_step, cfg.gamma, self.teacher)
         self.proximal = ProximalPull()
@@ -215,18 +202,14 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             return {}
         slots = self.buffer.sample_slots(cfg.batch_size)
         batch = self.buffer.gather(slots, self.sparse, self.device, cfg.encoder == "flat")
-        head_mask = None
-        if self.head_masks is not None:
-            head_mask = self.head_masks[torch.from_numpy(slots)].to(self.device)
-        losses: dict[str, Tensor | float] = dict(self._train_step(batch, head_mask))
+        losses: dict[str, Tensor | float] = dict(self._train_step(batch))
         self.num_updates += 1
         if self.constraint is not None:
             losses.update(self.constraint.stats())
         return losses
 
-    def _train_step(self, batch: Batch, head_mask: Tensor | None = None) -> dict[str, Tensor]:
-        """One DDPG update (Lillicrap et al. 2016, Algorithm 1) on a sampled batch; an
-        ensemble critic's heads learn where ``head_mask`` (batch, heads) says."""
+    def _train_step(self, batch: Batch) -> dict[str, Tensor]:
+        """One DDPG update (Lillicrap et al. 2016, Algorithm 1) on a sampled batch."""
         cfg, nets = self.config, self.networks
         # Critic: down its loss to the n-step TD target of the target networks. Q-values
         # are float32 (precision.float32_layer), and so are the targets and the losses.
@@ -236,18 +219,11 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         with self._autocast():
             q, hidden = nets.critic.values_and_hidden(batch.obs, batch.actions)
         discount = cfg.gamma**batch.horizons if cfg.n_step > 1 else cfg.gamma
-        if head_mask is not None:
-            loss, td_error = ensemble_critic_loss(
-                q, batch.rewards, batch.terminated, next_q, discount, head_mask
-            )
-        else:
-            loss, td_error = critic_loss(
-                q, batch.rewards, batch.terminated, next_q, discount, cfg.critic.kind == "quantile"
-            )
+        loss, td_error = critic_loss(
+            q, batch.rewards, batch.terminated, next_q, discount, cfg.critic.kind == "quantile"
+        )
         self._descend(self.critic_optimizer, loss)
         stats = {"critic_loss": loss.detach(), "q_mean": q.detach().mean(), "td_error": td_error}
-        if head_mask is not None:
-            stats["critic_disagreement"] = disagreement(q.detach()).mean()
         if self.constraint is not None:
             critic_hidden = (hidden.detach(), next_hidden)
             stats.update(
@@ -282,8 +258,7 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
 
     def _objective(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
         """What the actor climbs at ``action``, per sample: Q_r (the CVaR of the return's
-        quantiles below ``cvar_alpha`` = 1; an ensemble's heads' mean less the price of
-        their spread), priced by a collision budget's constraint."""
+        quantiles below ``cvar_alpha`` = 1), priced by a collision budget's constraint."""
         cfg, nets, constraint = self.config, self.networks, self.constraint
         with self._autocast():
             if constraint is not None and constraint.reads_critic_hidden:
@@ -292,8 +267,6 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
                 value, hidden = nets.critic(obs, action), None
         if cfg.critic.kind == "quantile":
             value = lower_tail_mean(value, cfg.critic.cvar_alpha)
-        elif cfg.critic.kind == "ensemble":
-            value = pessimistic_value(value, cfg.critic.disagreement_price)
         if constraint is not None:
             value = constraint.price(value, obs, action, hidden)
         return value

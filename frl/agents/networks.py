@@ -97,8 +97,7 @@ class Critic(nn.Module):
     The action joins the observation (or the encoder's output) at the first layer
     (``layers.0.extra_weight``), which computes ``Linear(in + action_dim, h0)`` on
     ``cat([x, action])``. With ``outputs`` > 1 it gives that many values per sample:
-    the quantiles of the return (``DDPGConfig.critic.kind=quantile``) or an ensemble's
-    heads (``ensemble``).
+    the quantiles of the return (``DDPGConfig.critic.kind=quantile``).
     """
 
     def __init__(
@@ -287,7 +286,7 @@ def build_actor_critic(
     generator: torch.Generator, device: torch.device,
 ) -> ActorCritic:  # fmt: skip
     """The agent's networks as ``config`` describes them, initialised from ``generator``
-    in a fixed order: actor, critic (a value per quantile or ensemble head), then a
+    in a fixed order: actor, critic (``quantiles`` outputs for a quantile critic), then a
     collision budget's cost critic (a head or a separate critic), built last so that the
     actor's and critic's initial weights do not depend on it."""
 
@@ -295,8 +294,7 @@ def build_actor_critic(
         return build_network(kind, obs_dim, action_dim, config, layout, generator, device, outputs)
 
     actor = network(Actor)
-    outputs = {"quantile": config.critic.quantiles, "ensemble": config.critic.heads}
-    critic = network(Critic, outputs.get(config.critic.kind, 1))
+    critic = network(Critic, config.critic.quantiles if config.critic.kind == "quantile" else 1)
     cost_critic: Critic | CostHead | None = None
     if config.costed:
         separate = config.cost_critic == "separate"

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from frl.retirement import RetiredOption, RetiredOptionError
+from frl.retirement import RetiredOption, RetiredOptionError, retired_message
 from frl.retirement import without_retired as _without_retired
 
 RETIRING_COMMIT = "7ff57ca"
@@ -22,6 +22,8 @@ _KEEPABLE_BUDGET = '"A budget the car can keep"'
 _KEEPABLE_BUDGET_COMMIT = "f5359cd"
 _BRANCHES = '"Counterfactual branches at the entry decision"'
 _BRANCHES_COMMIT = "5f21138"
+_DOUBT = '"A price on doubt: bootstrapped critic heads"'
+_DOUBT_COMMIT = "0000000"
 _BRANCHES_OFF = {"probability": 0.0, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10}
 """The ``agent.branches`` group as every config and checkpoint wrote it with branches off."""
 
@@ -51,8 +53,26 @@ RETIRED_OPTIONS: dict[str, RetiredOption] = {
 }
 """Each retired key, with its off value and its study."""
 
+RETIRED_CRITIC_OPTIONS: dict[str, RetiredOption] = {
+    "heads": RetiredOption(5, _DOUBT, _DOUBT_COMMIT),
+    "disagreement_price": RetiredOption(1.0, _DOUBT, _DOUBT_COMMIT),
+}
+"""Retired keys of the ``agent.critic`` group, with the values every config held."""
+RETIRED_CRITIC_KINDS: dict[str, RetiredOption] = {
+    "ensemble": RetiredOption("expected", _DOUBT, _DOUBT_COMMIT),
+}
+"""Retired values of ``agent.critic.kind``: what each measured, and the kind that loads."""
 
-__all__ = ["RETIRED_OPTIONS", "RetiredOption", "RetiredOptionError", "without_retired"]
+
+__all__ = [
+    "RETIRED_CRITIC_KINDS",
+    "RETIRED_CRITIC_OPTIONS",
+    "RETIRED_OPTIONS",
+    "RetiredOption",
+    "RetiredOptionError",
+    "without_retired",
+    "without_retired_critic",
+]
 
 
 def without_retired(options: Mapping[str, Any]) -> dict[str, Any]:
@@ -62,3 +82,18 @@ def without_retired(options: Mapping[str, Any]) -> dict[str, Any]:
         RetiredOptionError: a retired key at any other value (the first such key).
     """
     return _without_retired(options, RETIRED_OPTIONS, "agent")
+
+
+def without_retired_critic(critic: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``agent.critic`` group's ``critic`` options less its retired keys at their off
+    values.
+
+    Raises:
+        RetiredOptionError: a retired kind, or a retired key at any other value.
+    """
+    kind = critic.get("kind")
+    if isinstance(kind, str) and kind in RETIRED_CRITIC_KINDS:
+        raise RetiredOptionError(
+            retired_message("agent.critic", "kind", RETIRED_CRITIC_KINDS[kind], kind)
+        )
+    return _without_retired(critic, RETIRED_CRITIC_OPTIONS, "agent.critic")
