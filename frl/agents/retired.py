@@ -23,7 +23,7 @@ _KEEPABLE_BUDGET_COMMIT = "f5359cd"
 _BRANCHES = '"Counterfactual branches at the entry decision"'
 _BRANCHES_COMMIT = "5f21138"
 _DOUBT = '"A price on doubt: bootstrapped critic heads"'
-_DOUBT_COMMIT = "0000000"
+_DOUBT_COMMIT = "c23eea2"
 _BRANCHES_OFF = {"probability": 0.0, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10}
 """The ``agent.branches`` group as every config and checkpoint wrote it with branches off."""
 
