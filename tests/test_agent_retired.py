@@ -11,7 +11,12 @@ from gymnasium import spaces
 
 from frl.agents import DDPG, CheckpointError, DDPGConfig
 from frl.agents.config import CriticConfig
-from frl.agents.retired import RETIRED_OPTIONS, RetiredOptionError
+from frl.agents.retired import (
+    RETIRED_CRITIC_KINDS,
+    RETIRED_CRITIC_OPTIONS,
+    RETIRED_OPTIONS,
+    RetiredOptionError,
+)
 from frl.train_config import ConfigError, migrate_saved_config
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
@@ -129,7 +134,6 @@ def test_a_q_filter_without_an_imitation_term_did_nothing_and_loads():
 
 
 def test_the_ensemble_critic_is_refused_and_its_keys_load_at_their_off_values(tmp_path: Path):
-    from frl.agents.retired import RETIRED_CRITIC_KINDS, RETIRED_CRITIC_OPTIONS
     from frl.train import without_retired_overrides
 
     assert not {"heads", "disagreement_price"} & set(CriticConfig.__dataclass_fields__)
