@@ -6,11 +6,14 @@
 Trains FedAvg-DDPG (default agent and traffic, learning from step 300 instead of 1,000
 so that every step of the third round updates the networks) with 1, 2, 4 and 8 vehicles
 per task at a small budget, one fleet after the other, each as ``python -m frl.train``
-(no test episodes), and samples the resident memory of the whole process tree (the
-coordinator, its worker processes and their SUMO children) every 0.2 s.
+(no test episodes), and samples the memory of the whole process tree (the coordinator,
+its worker processes and their SUMO children) every 0.5 s.
 
 Prints per fleet: the worker processes; wall seconds per learning round (from the third
-on); the peak memory in total and per vehicle; the bytes up and down per round; the
+on); the peak memory, in total and per vehicle, as the tree's summed PSS (each shared
+page divided among the processes that map it: the memory the run takes), beside the peak
+of its summed RSS (shared pages counted once per process: libtorch's code in every
+worker), and what each part held at the PSS peak; the bytes up and down per round; the
 share of the round loop's wall time outside local training (aggregation, transfers,
 logging, checkpoints); the vehicles' CPU seconds, and CPU milliseconds per vehicle step,
 which do not depend on what else runs. The replay buffers hold sparse rows (about 1 MB
@@ -34,51 +37,101 @@ from pathlib import Path
 from frl.federation.assembly import worker_processes
 
 REPO = Path(__file__).resolve().parents[1]
-MEMORY_TARGET_GB = 8.0
-"""Peak memory allowed for 24 vehicles on the 24 GB machine."""
+MEMORY_TARGET_GB = 3.0
+"""Peak memory (summed PSS) allowed for 24 vehicles."""
 
 
-def tree_rss_bytes(root_pid: int) -> int:
-    """Resident memory of ``root_pid`` and all its descendants (Linux /proc)."""
+def process_children() -> dict[int, list[int]]:
+    """Each live process's children (Linux /proc)."""
     children: dict[int, list[int]] = {}
-    rss: dict[int, int] = {}
     for entry in os.scandir("/proc"):
         if not entry.name.isdigit():
             continue
         try:
             with open(f"/proc/{entry.name}/stat") as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-        except OSError:
+                parent = int(f.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
             continue
-        pid, parent = int(entry.name), int(fields[1])
-        children.setdefault(parent, []).append(pid)
-        rss[pid] = int(fields[21]) * os.sysconf("SC_PAGE_SIZE")
-    total, todo = 0, [root_pid]
+        children.setdefault(parent, []).append(int(entry.name))
+    return children
+
+
+def process_tree(root_pid: int) -> list[int]:
+    """``root_pid`` and all its descendants."""
+    children, tree, todo = process_children(), [], [root_pid]
     while todo:
         pid = todo.pop()
-        total += rss.get(pid, 0)
+        tree.append(pid)
         todo.extend(children.get(pid, []))
-    return total
+    return tree
+
+
+def resident_and_proportional(pid: int) -> tuple[int, int] | None:
+    """Resident (RSS) and proportional (PSS) bytes of ``pid``, or None once it is gone.
+
+    RSS counts every page the process maps, shared ones (libtorch's code, the pages a
+    forked worker still shares with its parent) in full; PSS divides each shared page among
+    the processes that map it, so that a tree's PSS sums to the memory it takes."""
+    rss = pss = None
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as f:
+            for line in f:
+                if line.startswith("Rss:"):
+                    rss = int(line.split()[1]) * 1024
+                elif line.startswith("Pss:"):
+                    pss = int(line.split()[1]) * 1024
+    except OSError:
+        return None
+    return None if rss is None or pss is None else (rss, pss)
+
+
+def process_role(pid: int, root_pid: int) -> str:
+    """Which part of a run ``pid`` is: the coordinator (the roadside unit's process), a
+    SUMO simulation, or another Python process (the vehicles' workers, their helpers)."""
+    if pid == root_pid:
+        return "coordinator"
+    try:
+        with open(f"/proc/{pid}/comm") as f:
+            name = f.read().strip()
+    except OSError:
+        return "gone"
+    return "sumo" if name.startswith("sumo") else "workers"
 
 
 class PeakMemory:
-    """Samples a process tree's resident memory in a thread; ``peak`` in bytes."""
+    """Samples a process tree's memory in a thread: the peaks of its summed RSS and of its
+    summed PSS (``peak_rss``, ``peak_pss``, bytes), and the PSS of each role at the PSS
+    peak (``roles_at_peak``: role -> (processes, bytes))."""
 
-    def __init__(self, pid: int, every_s: float = 0.2) -> None:
-        self.pid, self.every_s, self.peak = pid, every_s, 0
+    def __init__(self, pid: int, every_s: float = 0.5) -> None:
+        self.pid, self.every_s = pid, every_s
+        self.peak_rss = self.peak_pss = 0
+        self.roles_at_peak: dict[str, tuple[int, int]] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, daemon=True)
         self._thread.start()
 
     def _sample(self) -> None:
         while not self._stop.is_set():
-            self.peak = max(self.peak, tree_rss_bytes(self.pid))
+            rss_total = pss_total = 0
+            roles: dict[str, tuple[int, int]] = {}
+            for pid in process_tree(self.pid):
+                memory = resident_and_proportional(pid)
+                if memory is None:
+                    continue
+                rss_total += memory[0]
+                pss_total += memory[1]
+                role = process_role(pid, self.pid)
+                count, size = roles.get(role, (0, 0))
+                roles[role] = (count + 1, size + memory[1])
+            self.peak_rss = max(self.peak_rss, rss_total)
+            if pss_total > self.peak_pss:
+                self.peak_pss, self.roles_at_peak = pss_total, roles
             self._stop.wait(self.every_s)
 
-    def stop(self) -> int:
+    def stop(self) -> None:
         self._stop.set()
         self._thread.join()
-        return self.peak
 
 
 def run_fleet(vehicles: int, args: argparse.Namespace, overrides: list[str]) -> dict:
@@ -99,7 +152,7 @@ def run_fleet(vehicles: int, args: argparse.Namespace, overrides: list[str]) -> 
         process = subprocess.Popen(command, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
         memory = PeakMemory(process.pid)
         returncode = process.wait()
-        peak = memory.stop()
+        memory.stop()
     if returncode != 0:
         raise SystemExit(f"fleet of {vehicles} failed; see {args.out / f'fleet{vehicles}.log'}")
     results = json.loads((run_dir / "results.json").read_text())
@@ -110,8 +163,10 @@ def run_fleet(vehicles: int, args: argparse.Namespace, overrides: list[str]) -> 
         "vehicles": vehicles,
         "command_s": time.perf_counter() - began,
         "seconds_per_round": sum(learning_rounds) / len(learning_rounds),
-        "peak_gb": peak / 1e9,
-        "per_vehicle_mb": peak / vehicles / 1e6,
+        "peak_gb": memory.peak_pss / 1e9,
+        "peak_rss_gb": memory.peak_rss / 1e9,
+        "per_vehicle_mb": memory.peak_pss / vehicles / 1e6,
+        "roles_at_peak": memory.roles_at_peak,
         "mib_per_round": communication["total_bytes"] / results["rounds"] / 2**20,
         # The round loop outside the coordinator's wait for local training: with vehicles
         # taking turns in a worker, the slowest single vehicle is not the round's training.
@@ -143,7 +198,7 @@ def main() -> None:
           f"interval {args.interval}, learning from step {args.interval}, "
           f"{available_cores()} cores; overrides: "
           f"{' '.join(overrides) or '(none)'}")  # fmt: skip
-    header = (f"{'vehicles':>8} {'workers':>7} {'s/round':>8} {'peak GB':>8} "
+    header = (f"{'vehicles':>8} {'workers':>7} {'s/round':>8} {'peak GB':>8} {'RSS GB':>7} "
               f"{'MB/vehicle':>10} {'MiB/round':>9} {'outside':>8} {'CPU s':>7} "
               f"{'CPU ms/step':>11} {'command s':>9}")  # fmt: skip
     print(header)
@@ -153,10 +208,16 @@ def main() -> None:
         rows.append(row)
         settings = validate(load_run_config(args.out / f"fleet{vehicles}"))
         print(f"{vehicles:>8} {worker_processes(settings):>7} {row['seconds_per_round']:>8.1f} "
-              f"{row['peak_gb']:>8.2f} {row['per_vehicle_mb']:>10.0f} {row['mib_per_round']:>9.1f} "
+              f"{row['peak_gb']:>8.2f} {row['peak_rss_gb']:>7.2f} "
+              f"{row['per_vehicle_mb']:>10.0f} {row['mib_per_round']:>9.1f} "
               f"{row['outside_share']:>8.1%} {row['client_cpu_s']:>7.0f} "
               f"{row['cpu_ms_per_step']:>11.1f} {row['command_s']:>9.0f}",
               flush=True)  # fmt: skip
+        roles = ", ".join(
+            f"{role} {size / 1e9:.2f} GB ({count} processes)"
+            for role, (count, size) in sorted(row["roles_at_peak"].items())
+        )
+        print(f"{'':>8} at the peak: {roles}", flush=True)
     largest = max(rows, key=lambda r: r["vehicles"])
     verdict = "within" if largest["peak_gb"] < MEMORY_TARGET_GB else "ABOVE"
     print(

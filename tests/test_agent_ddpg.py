@@ -76,6 +76,18 @@ def test_update_is_empty_before_learning_starts_then_counts() -> None:
     assert agent.num_env_steps == 25 and agent.num_updates == 6
 
 
+def test_an_update_leaves_no_gradients_behind() -> None:
+    config = DDPGConfig(**{**SMALL.to_dict(), "collision_budget": 0.02})
+    agent = DDPG(GRID, ACCEL, config)
+    before = {k: v.clone() for k, v in params(agent).items()}
+    run(agent, 25)
+    assert agent.num_updates == 6 and any(
+        not torch.equal(before[k], v) for k, v in params(agent).items()
+    )
+    networks = [agent.actor, agent.critic, agent.networks.cost_critic]
+    assert all(p.grad is None for net in networks for p in net.parameters())
+
+
 def test_train_freq_updates_every_nth_step() -> None:
     config = DDPGConfig(**{**SMALL.to_dict(), "train_freq": 2})
     agent = DDPG(GRID, ACCEL, config)

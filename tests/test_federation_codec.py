@@ -63,3 +63,38 @@ def test_a_frame_carries_json_and_arrays_without_pickle():
     frame = encode_frame({"op": "x"}) + pickled.getvalue()
     with pytest.raises(ValueError, match="pickle"):
         decode_frame(frame)
+
+
+def test_a_frame_is_read_in_place_not_from_a_copy_of_its_tail():
+    import tracemalloc
+
+    weights = np.arange(2_000_000, dtype=np.float32)  # 8 MB, a model upload's size
+    frame = encode_frame({"op": "train"}, {"param/w": weights})
+
+    tracemalloc.start()
+    try:
+        _, back = decode_frame(frame)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+    np.testing.assert_array_equal(back["param/w"], weights)
+    # The decoded array itself, and no copy of the 8 MB archive beside it.
+    assert peak < 1.5 * weights.nbytes, peak
+
+
+def test_decoded_parameters_become_tensors_without_a_copy_only_when_asked():
+    from frl.federation.codec import arrays_to_tensors
+
+    decoded = {"w": np.ones(4, np.float32)}
+    frozen = np.ones(4, np.float32)
+    frozen.flags.writeable = False
+
+    shared = arrays_to_tensors(decoded, copy=False)["w"]
+    copied = arrays_to_tensors(decoded)["w"]
+    still_copied = arrays_to_tensors({"w": frozen}, copy=False)["w"]
+
+    assert shared.data_ptr() == decoded["w"].ctypes.data
+    assert copied.data_ptr() != decoded["w"].ctypes.data
+    assert still_copied.data_ptr() != frozen.ctypes.data
+    assert torch.equal(shared, copied) and torch.equal(still_copied, copied)

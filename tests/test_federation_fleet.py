@@ -13,6 +13,7 @@ from train_helpers import compose_config, tiny_spec
 
 from frl.federation import FederationPlan, ProcessClientPool
 from frl.federation.assembly import client_specs
+from frl.federation.frames import encode_frame
 from frl.federation.plan import round_sample
 from frl.report.runs import load_run
 from frl.run_directory import RESULTS_FILE
@@ -125,6 +126,29 @@ def test_vehicles_sharing_a_worker_drive_as_they_would_alone():
     assert [u.client for u in shared_later] == ["client2_right"]
     assert shared_later[0].total_steps == 80
     np.testing.assert_array_equal(alone_later[0].step_rewards, shared_later[0].step_rewards)
+
+
+def test_vehicles_sent_the_same_message_share_one_frame(monkeypatch):
+    from frl.federation import client_pool
+
+    encoded = []
+
+    def counting_encode(header, arrays=None):
+        encoded.append(header["op"])
+        return encode_frame(header, arrays)
+
+    specs = [tiny_spec(0, "left"), tiny_spec(1, "straight"), tiny_spec(2, "right")]
+    with ProcessClientPool(specs, num_threads=1, num_workers=2) as pool:
+        monkeypatch.setattr(client_pool, "encode_frame", counting_encode)
+        model = pool.get_model(0)
+        pool.set_parameters(model, sync_targets=False)
+        held = pool.get_parameters()
+
+    # One frame for the three vehicles' global model, however many workers host them.
+    assert encoded.count("sync") == 1
+    for state in held:
+        for key, tensor in model.items():
+            assert torch.equal(state[key], tensor), key
 
 
 def test_proximal_term_pulls_towards_the_global_model():

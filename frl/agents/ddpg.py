@@ -283,11 +283,14 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         return inverting_gradients_loss(preactivation, dq_da), q_policy
 
     def _descend(self, optimizer: torch.optim.Optimizer, loss: Tensor) -> None:
-        """One optimizer step down ``loss``, plus FedProx's pull where it is anchored."""
+        """One optimizer step down ``loss``, plus FedProx's pull where it is anchored. The
+        gradients are let go after the step: the next backward makes new ones anyway, and a
+        process hosting many vehicles would otherwise keep every vehicle's."""
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.proximal.add_gradient(optimizer)
         optimizer.step()
+        optimizer.zero_grad(set_to_none=True)
 
     def critic_values(self, observations: Any, actions: Any, cost: bool = False) -> np.ndarray:
         """Q(s, a) of the online critic, or with ``cost`` the cost critic's; see

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import os
 import shutil
 import tempfile
@@ -214,9 +215,17 @@ class ProcessClientPool:
         """One request frame per vehicle in ``headers`` (the same ``arrays`` to each); the
         replies by vehicle. Workers run in parallel, a worker's vehicles in turn."""
         frames: list[list[bytes | None]] = [[None] * len(m) for m in self._members]
+        # Vehicles sent the same header (a round's global model, a train request) share
+        # one frame: encoded once here, pickled once per worker.
+        encoded: dict[str, bytes] = {}
         for vehicle, header in headers.items():
             worker, slot = self.placement[vehicle]
-            frames[worker][slot] = encode_frame({**header, "run_key": self.run_key}, arrays)
+            full = {**header, "run_key": self.run_key}
+            key = json.dumps(full, sort_keys=True)
+            if key not in encoded:
+                encoded[key] = encode_frame(full, arrays)
+            frames[worker][slot] = encoded[key]
+        del encoded
         busy = [w for w, row in enumerate(frames) if any(f is not None for f in row)]
 
         def report(worker_index: int, info: dict[str, Any]) -> None:
@@ -229,11 +238,13 @@ class ProcessClientPool:
             workers=busy,
             on_progress=report if on_progress is not None else None,
         )
+        del frames
         decoded: dict[int, tuple[dict[str, Any], Arrays]] = {}
-        for worker, row in zip(busy, replies, strict=True):
-            for slot, reply in enumerate(row):
+        for position, worker in enumerate(busy):
+            for slot, reply in enumerate(replies[position]):
                 if reply is not None:
                     decoded[self._members[worker][slot]] = decode_frame(reply)
+            replies[position] = None  # a worker's reply frames go once they are read
         return decoded
 
     def _all(self, vehicles: Sequence[int] | None) -> list[int]:
@@ -260,6 +271,7 @@ class ProcessClientPool:
                 unprefixed(out, PARAMETERS_PREFIX) if reply["upload"] else None,
                 unprefixed(out, SERIES_PREFIX),
                 reply["summary"],
+                copy=False,
             )
             for reply, out in (replies[i] for i in chosen)
         ]
@@ -280,7 +292,7 @@ class ProcessClientPool:
 
     def get_model(self, index: int) -> dict[str, Tensor]:
         _, out = self._exchange({index: {"op": "model"}})[index]
-        return arrays_to_tensors(unprefixed(out, PARAMETERS_PREFIX))
+        return arrays_to_tensors(unprefixed(out, PARAMETERS_PREFIX), copy=False)
 
     def save(self, directory: Path) -> None:
         header = {"op": "sync", "parameters": False, "checkpoint": self._relative(directory)}

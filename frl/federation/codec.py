@@ -59,8 +59,14 @@ def tensors_to_arrays(parameters: Mapping[str, Tensor]) -> Arrays:
     return {key: value.detach().cpu().numpy().copy() for key, value in parameters.items()}
 
 
-def arrays_to_tensors(arrays: Mapping[str, np.ndarray]) -> dict[str, Tensor]:
-    return {key: torch.from_numpy(np.array(value, copy=True)) for key, value in arrays.items()}
+def arrays_to_tensors(arrays: Mapping[str, np.ndarray], copy: bool = True) -> dict[str, Tensor]:
+    """Tensors of a parameter dict: copies, or with ``copy=False`` tensors that share the
+    arrays' memory (for arrays just decoded from a frame, which nothing else holds; a
+    read-only array is still copied)."""
+    return {
+        key: torch.from_numpy(value if not copy and value.flags.writeable else value.copy())
+        for key, value in arrays.items()
+    }
 
 
 # ------------------------------------------------------------------ updates
@@ -89,8 +95,10 @@ def update_from_parts(
     parameters: Mapping[str, np.ndarray] | None,
     series: Mapping[str, np.ndarray],
     summary: Mapping[str, Any],
+    copy: bool = True,
 ) -> LocalUpdate:
-    """Inverse of :func:`update_to_parts`."""
+    """Inverse of :func:`update_to_parts`; with ``copy=False`` the parameters share the
+    arrays' memory (:func:`arrays_to_tensors`)."""
     return LocalUpdate(
         client=str(summary["client"]),
         num_steps=int(summary["num_steps"]),
@@ -101,7 +109,7 @@ def update_from_parts(
         actions={
             k: np.asarray(v, np.float32) for k, v in unprefixed(series, ACTION_PREFIX).items()
         },
-        parameters=None if parameters is None else arrays_to_tensors(parameters),
+        parameters=None if parameters is None else arrays_to_tensors(parameters, copy=copy),
         cpu_time_s=float(summary["cpu_time_s"]),
         wall_time_s=float(summary.get("wall_time_s", 0.0)),
     )

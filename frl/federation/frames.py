@@ -50,8 +50,11 @@ def decode_frame(frame: bytes) -> tuple[dict[str, Any], Arrays]:
     (length,) = _HEADER.unpack_from(frame)
     start = _HEADER.size
     header = json.loads(frame[start : start + length])
-    rest = frame[start + length :]
-    if not rest:
+    if len(frame) == start + length:
         return header, {}
-    with np.load(io.BytesIO(rest), allow_pickle=False) as archive:
+    # Read the archive in place (zipfile finds it after the header) rather than from a
+    # copy of the frame's tail: a model upload is megabytes, received once per vehicle.
+    stream = io.BytesIO(frame)
+    stream.seek(start + length)
+    with np.load(stream, allow_pickle=False) as archive:
         return header, {key: archive[key] for key in archive.files}

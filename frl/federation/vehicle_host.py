@@ -91,7 +91,7 @@ class VehicleHost:
             return {"summary": summary, "upload": parameters is not None}, out
         if op == "sync":
             if header.get("parameters"):
-                parameters = arrays_to_tensors(unprefixed(arrays, PARAMETERS_PREFIX))
+                parameters = arrays_to_tensors(unprefixed(arrays, PARAMETERS_PREFIX), copy=False)
                 client.set_parameters(parameters, sync_targets=bool(header["sync_targets"]))
             if header.get("checkpoint"):
                 self._save(str(header["checkpoint"]))
