@@ -14,6 +14,7 @@ frl's figures and says how to add the comparison.
     python benchmarks/agent_speed.py [--blocks 16] [--threads N] [--profile] [--device cpu]
         [--precisions float32,bf16] [--option n_step=1 ...] [--variant "NAME KEY=VALUE ..."]
         [--dense] [--skip-sb3] [--skip-floor] [--skip-peak] [--skip-buffer]
+        [--scenes PATH.npz | --save-scenes PATH.npz]
 
 ``--option KEY=VALUE`` sets a DDPGConfig field of the frl agents (repeatable);
 ``--variant "NAME KEY=VALUE ..."`` adds a row of the default agent with those fields
@@ -94,9 +95,15 @@ BLOCK = 25
 
 
 class RecordedScenes:
-    """Observations, terminations and rewards recorded from the intersection."""
+    """Observations, terminations and rewards recorded from the intersection (SUMO), or
+    loaded from a file that :meth:`save` wrote (a machine without SUMO, a GPU host)."""
 
-    def __init__(self, steps_per_task: int = 800, seed: int = 0) -> None:
+    def __init__(self, observations: np.ndarray, terminated: np.ndarray, rewards: np.ndarray):
+        self.observations, self.terminated, self.rewards = observations, terminated, rewards
+
+    @classmethod
+    def record(cls, steps_per_task: int = 800, seed: int = 0) -> RecordedScenes:
+        """Drive each task ``steps_per_task`` steps on held random accelerations."""
         rng = np.random.default_rng(seed)
         observations, ends = [], []
         for task in TASKS:
@@ -113,9 +120,26 @@ class RecordedScenes:
                 if terminated or truncated:
                     obs, _ = env.reset()
             env.close()
-        self.observations = np.stack(observations)
-        self.terminated = np.array(ends)
-        self.rewards = rng.normal(0.0, 0.1, size=len(ends)).astype(np.float32)
+        rewards = rng.normal(0.0, 0.1, size=len(ends)).astype(np.float32)
+        return cls(np.stack(observations), np.array(ends), rewards)
+
+    def save(self, path: Path) -> None:
+        """Write the scenes to ``path`` (a compressed ``.npz``)."""
+        np.savez_compressed(
+            path, observations=self.observations, terminated=self.terminated,
+            rewards=self.rewards,
+        )  # fmt: skip
+
+    @classmethod
+    def load(cls, path: Path) -> RecordedScenes:
+        """Scenes that :meth:`save` wrote; a file of another shape is refused."""
+        with np.load(path, allow_pickle=False) as data:
+            scenes = cls(data["observations"], data["terminated"], data["rewards"])
+        if scenes.observations.shape[1:] != GRID_SHAPE or not (
+            len(scenes.observations) == len(scenes.terminated) == len(scenes.rewards) > 0
+        ):
+            raise ValueError(f"{path}: not scenes of the {GRID_SHAPE} grid")
+        return scenes
 
     @property
     def mean_nonzeros(self) -> float:
@@ -202,7 +226,8 @@ class FrlLearner(Learner):
         action = agent.act(self.obs, explore=True)
         next_obs, reward, terminated = self.next_scene()
         agent.observe(self.obs, action, reward, next_obs, terminated)
-        agent.update()
+        # As training does, the losses stay on the device: reading them would wait for it.
+        agent.update_unread()
         self.obs = next_obs
         if terminated:
             agent.episode_start()
@@ -463,6 +488,11 @@ def main() -> None:
         "--device", default="cpu", help="where frl's networks and updates run (cpu, cuda)"
     )
     parser.add_argument(
+        "--scenes", type=Path, default=None, help="replay scenes saved with --save-scenes "
+        "(a machine without SUMO) instead of recording them",
+    )  # fmt: skip
+    parser.add_argument("--save-scenes", type=Path, default=None, metavar="PATH.npz")
+    parser.add_argument(
         "--option", action="append", default=[], metavar="KEY=VALUE", help="a DDPGConfig field"
     )
     parser.add_argument(
@@ -489,8 +519,16 @@ def main() -> None:
         on_cpu and not args.skip_sb3 and importlib.util.find_spec("stable_baselines3") is not None
     )
 
+    if args.scenes is not None and not args.scenes.is_file():
+        parser.error(f"--scenes {args.scenes}: no such file")
+
     threads = configure_cpu_training(args.threads)
-    scenes = RecordedScenes()
+    try:
+        scenes = RecordedScenes.load(args.scenes) if args.scenes else RecordedScenes.record()
+    except ValueError as error:
+        parser.error(str(error))
+    if args.save_scenes is not None:
+        scenes.save(args.save_scenes)
     native = has_native_bf16(device)
     print(
         f"torch {torch.__version__}, device {device}, {threads} threads, native bf16: "

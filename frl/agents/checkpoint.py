@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
-from frl.agents.config import DDPGConfig
+from frl.agents.config import EXECUTION_FIELDS, DDPGConfig
 from frl.agents.noise import generator_state, set_generator_state
 from frl.agents.observations import space_from_record
 from frl.agents.retired import RetiredOptionError
@@ -195,7 +195,11 @@ def _check_compatible(agent: Any, data: dict[str, Any], path: str | os.PathLike[
     # Keys added to DDPGConfig since a checkpoint was written read as what it ran with.
     saved = saved_config(data, path).to_dict()
     mine = agent.config.to_dict()
-    differing = sorted(k for k in set(saved) | set(mine) if saved.get(k) != mine.get(k))
+    differing = sorted(
+        k
+        for k in set(saved) | set(mine)
+        if saved.get(k) != mine.get(k) and k not in EXECUTION_FIELDS
+    )
     if differing:
         raise CheckpointError(f"checkpoint config differs from this agent's in {differing}")
     spaces_saved, spaces_mine = data["spaces"], spaces_record(agent)

@@ -79,10 +79,14 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "guide": GUIDES,
     "encoder": ENCODERS,
     "precision": PRECISIONS,
+    "cuda_graph": (True, False),
     "sparse.input": (True, False, "auto"),
     "critic.kind": CRITICS,
     "cost_critic": COST_CRITICS,
 }
+EXECUTION_FIELDS: tuple[str, ...] = ("cuda_graph",)
+"""Fields that say how an update is launched, not what it computes: an agent loads a
+checkpoint whatever they were when it was written."""
 DEFAULT_LAGRANGE_GAINS: tuple[float, float, float] = (10.0, 0.1, 0.0)
 """The collision budget's PID gains (Kp, Ki, Kd); why these: :mod:`frl.agents.lagrange`."""
 
@@ -298,6 +302,11 @@ class DDPGConfig:
     ``bf16`` (autocast; weights, optimizer state, targets, output layers and losses stay
     float32) or ``auto`` (bf16 where the device computes it natively, else float32);
     see :mod:`frl.agents.precision`."""
+    cuda_graph: bool = True
+    """On a CUDA device, capture the update as a CUDA graph once per batch layout and
+    replay it (:mod:`frl.agents.update_graph`): the same kernels on the same numbers,
+    launched at once. False: every update eager. Ignored on a CPU, and for batches whose
+    shapes change (the flat encoder's sparse rows)."""
     collision_budget: float | None = None
     """Collisions per training episode the agent may average, in [0, 1): a cost critic
     learns the discounted collisions to come, and a Lagrange multiplier, driven by the

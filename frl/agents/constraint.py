@@ -68,6 +68,12 @@ class CollisionConstraint:
         """The running training episode's collisions and steps. Every training episode
         counts, exploration noise and all: counting only noise-free ones was measured and
         retired (docs/studies.md, "A budget the car can keep")."""
+        self.multiplier_now = torch.zeros((), device=device)
+        """lambda on the device, and 1 + lambda (rounded once, from float64, as Python's
+        ``1.0 + lambda`` is): what :meth:`price` reads, so that an update captured as a
+        graph reads today's multiplier, not the one it was captured with. Refilled in
+        place whenever the multiplier moves."""
+        self.price_denominator = torch.ones((), device=device)
 
     @property
     def reads_critic_hidden(self) -> bool:
@@ -85,7 +91,13 @@ class CollisionConstraint:
         step was counted since the last end)."""
         if self.episode_steps:
             self.lagrangian.episode_end(self.episode_cost)
+            self._refresh_multiplier()
         self.episode_cost, self.episode_steps = 0.0, 0
+
+    def _refresh_multiplier(self) -> None:
+        multiplier = self.lagrangian.multiplier
+        self.multiplier_now.fill_(multiplier)
+        self.price_denominator.fill_(1.0 + multiplier)
 
     def stats(self) -> dict[str, float]:
         """The multiplier, and the rate it follows once an episode has ended."""
@@ -134,10 +146,9 @@ class CollisionConstraint:
         """The actor's objective under the budget: (value - lambda Q_c) / (1 + lambda), so
         that its scale stays that of a return as lambda grows (Stooke et al. 2020)."""
         assert self.networks.cost_critic is not None
-        multiplier = self.lagrangian.multiplier
         with self.autocast():
             cost = self.values(self.networks.cost_critic, obs, action, hidden)
-        return (value - multiplier * cost) / (1.0 + multiplier)
+        return (value - self.multiplier_now * cost) / self.price_denominator
 
     # ------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:
@@ -151,5 +162,6 @@ class CollisionConstraint:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.lagrangian.load_state_dict(state["multiplier"])
+        self._refresh_multiplier()
         self.episode_cost = float(state["episode_cost"])
         self.episode_steps = int(state["episode_steps"])

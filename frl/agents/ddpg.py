@@ -42,6 +42,7 @@ from frl.agents.precision import autocast, resolve_precision
 from frl.agents.replay_buffer import Batch, ReplayBuffer
 from frl.agents.sparse_linear import SparseRows
 from frl.agents.transitions import Teacher, TransitionWriter
+from frl.agents.update_graph import GraphedUpdate
 
 Path = str | os.PathLike[str]
 
@@ -118,6 +119,13 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         self.writer = TransitionWriter(self.buffer, cfg.n_step, cfg.gamma, self.teacher)
         self.proximal = ProximalPull()
         """FedProx's pull towards the global model (off until :meth:`set_proximal_anchor`)."""
+        self.update_graph = (
+            GraphedUpdate(self._train_step, self.device, self._tensors_read)
+            if cfg.cuda_graph and self.device.type == "cuda"
+            else None
+        )
+        """The update replayed as a CUDA graph (:mod:`frl.agents.update_graph`); None
+        where updates run eagerly (a CPU, ``cuda_graph=False``)."""
         self.last_policy_action = np.full(self.action_dim, np.nan)
         """The policy's normalised action (before noise) behind the last :meth:`act`; NaN
         during the uniform warm-up."""
@@ -201,8 +209,13 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         ):
             return {}
         slots = self.buffer.sample_slots(cfg.batch_size)
-        batch = self.buffer.gather(slots, self.sparse, self.device, cfg.encoder == "flat")
-        losses: dict[str, Tensor | float] = dict(self._train_step(batch))
+        transposed = cfg.encoder == "flat"
+        if self.update_graph is not None:  # it copies the host batch to its static one
+            batch = self.buffer.gather(slots, self.sparse, "cpu", transposed)
+            losses: dict[str, Tensor | float] = dict(self.update_graph(batch))
+        else:
+            batch = self.buffer.gather(slots, self.sparse, self.device, transposed)
+            losses = dict(self._train_step(batch))
         self.num_updates += 1
         if self.constraint is not None:
             losses.update(self.constraint.stats())
@@ -281,6 +294,20 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         q_policy = self._objective(batch.obs, action)
         (dq_da,) = torch.autograd.grad(q_policy.sum(), action)
         return inverting_gradients_loss(preactivation, dq_da), q_policy
+
+    def _tensors_read(self) -> list[Tensor]:
+        """What an update reads besides its batch and keeps from one update to the next:
+        the networks, the optimizers' state, FedProx's anchors. A captured update
+        replays on these very tensors, so a new one among them means a new capture."""
+        optimizers = [self.actor_optimizer, self.critic_optimizer]
+        if self.constraint is not None:
+            optimizers.append(self.constraint.optimizer)
+        tensors = [*self.networks.parameters(), *self.networks.buffers()]
+        for optimizer in optimizers:
+            for state in optimizer.state.values():
+                tensors += [value for value in state.values() if isinstance(value, Tensor)]
+        tensors += [anchor for pairs in self.proximal.anchors.values() for _, anchor in pairs]
+        return tensors
 
     def _descend(self, optimizer: torch.optim.Optimizer, loss: Tensor) -> None:
         """One optimizer step down ``loss``, plus FedProx's pull where it is anchored. The

@@ -74,9 +74,10 @@ def inverting_gradients_loss(preactivation: Tensor, dq_da: Tensor) -> Tensor:
     return -(dq_da * scale * preactivation).sum() / preactivation.shape[0]
 
 
-def quantile_midpoints(count: int) -> Tensor:
-    """The quantile levels a quantile critic's outputs stand for: (2i + 1) / (2 count)."""
-    return (torch.arange(count, dtype=torch.float32) + 0.5) / count
+def quantile_midpoints(count: int, device: torch.device | str = "cpu") -> Tensor:
+    """The quantile levels a quantile critic's outputs stand for: (2i + 1) / (2 count),
+    made on ``device`` (a captured update copies nothing from the host)."""
+    return (torch.arange(count, dtype=torch.float32, device=device) + 0.5) / count
 
 
 def quantile_huber_loss(quantiles: Tensor, targets: Tensor, kappa: float = 1.0) -> Tensor:
@@ -92,7 +93,7 @@ def quantile_huber_loss(quantiles: Tensor, targets: Tensor, kappa: float = 1.0) 
             f"expected (batch, N) quantiles and (batch, M) targets, got "
             f"{tuple(quantiles.shape)} and {tuple(targets.shape)}"
         )
-    taus = quantile_midpoints(quantiles.shape[1]).to(quantiles.device)
+    taus = quantile_midpoints(quantiles.shape[1], quantiles.device)
     u = targets.unsqueeze(1) - quantiles.unsqueeze(2)  # (batch, N, M)
     absolute = u.abs()
     huber = torch.where(absolute <= kappa, 0.5 * u.square(), kappa * (absolute - 0.5 * kappa))

@@ -302,10 +302,31 @@ def build_actor_critic(
     return ActorCritic(actor, critic, cost_critic)
 
 
+class DeviceAdam(torch.optim.Adam):
+    """Adam that keeps the ``capturable`` it was built with when a state is loaded: a
+    checkpoint written on a CPU resumes on a GPU, whose captured update
+    (:mod:`frl.agents.update_graph`) needs a capturable step, and one written on a GPU
+    resumes on a CPU."""
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        capturable = [group["capturable"] for group in self.param_groups]
+        super().load_state_dict(state_dict)
+        for group, flag in zip(self.param_groups, capturable, strict=True):
+            group["capturable"] = flag
+            for param in group["params"] if flag else ():
+                state = self.state.get(param, {})
+                if isinstance(state.get("step"), Tensor):  # a capturable step counts on the device
+                    state["step"] = state["step"].to(param.device, torch.float32)
+
+
 def make_adam(params: list[nn.Parameter], lr: float, device: torch.device) -> torch.optim.Adam:
     """Adam with the fused kernel, which updates all parameters in one pass (on CPU since
-    torch 2.4), else the foreach one."""
+    torch 2.4), else the foreach one; on a GPU capturable, so that an update can be
+    captured as a CUDA graph (its step count lives on the device)."""
+    capturable = device.type == "cuda"
     try:
-        return torch.optim.Adam(params, lr=lr, fused=True)
+        return DeviceAdam(params, lr=lr, fused=True, capturable=capturable)
     except (RuntimeError, TypeError, ValueError):
-        return torch.optim.Adam(params, lr=lr, foreach=device.type != "cpu" or None)
+        return DeviceAdam(
+            params, lr=lr, foreach=device.type != "cpu" or None, capturable=capturable
+        )

@@ -118,9 +118,13 @@ def resolve_precision(
 
 
 def autocast(device: torch.device, precision: str) -> AbstractContextManager[object]:
-    """The context the agent's forward passes run in: bf16 autocast, or nothing."""
+    """The context the agent's forward passes run in: bf16 autocast, or nothing. On a GPU
+    without the cache of weight casts, which a captured update (``DDPGConfig.cuda_graph``)
+    may not keep across replays; the casts' values are the same either way."""
     if precision == "bf16":
-        return torch.autocast(device.type, dtype=torch.bfloat16)
+        return torch.autocast(
+            device.type, dtype=torch.bfloat16, cache_enabled=device.type != "cuda"
+        )
     return contextlib.nullcontext()
 
 

@@ -43,6 +43,10 @@ class Batch(NamedTuple):
     costs: Tensor | None = None
     """The discounted cost sums (collisions), where the buffer stores them."""
 
+    def to(self, device: Any) -> Batch:
+        """The same batch on ``device`` (copies from the host do not wait)."""
+        return Batch(*(None if t is None else t.to(device, non_blocking=True) for t in self))
+
 
 def committed_when_written(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
     """Zeros in an anonymous memory map, whose pages take memory only once written.
@@ -302,9 +306,7 @@ class ReplayBuffer:
             torch.from_numpy(self.guide_actions[slots]) if self.guided else None,
             torch.from_numpy(self.costs[slots]) if self.costed else None,
         )
-        if torch.device(device).type == "cpu":
-            return batch
-        return Batch(*(None if t is None else t.to(device, non_blocking=True) for t in batch))
+        return batch if torch.device(device).type == "cpu" else batch.to(device)
 
     def _per_transition(self) -> tuple[str, ...]:
         """The arrays with one row per transition besides the observations."""
