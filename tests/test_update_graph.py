@@ -18,7 +18,13 @@ from gymnasium import spaces
 
 from frl.agents import DDPG, DDPGConfig
 from frl.agents.networks import DeviceAdam
-from frl.agents.update_graph import GraphedUpdate, batch_layout, batch_tensors, rebuild_batch
+from frl.agents.update_graph import (
+    GraphedUpdate,
+    batch_layout,
+    batch_tensors,
+    keeps_one_layout,
+    rebuild_batch,
+)
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
 ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
@@ -154,6 +160,18 @@ def test_an_agent_on_a_cpu_updates_eagerly_and_the_option_is_checked() -> None:
         small_config(cuda_graph="yes")
 
 
+def test_only_agents_whose_batches_keep_their_layout_are_captured() -> None:
+    vehicles, flat = small_config(), small_config(encoder="flat", actor_update="tanh")
+    assert keeps_one_layout(vehicles, sparse=True) and keeps_one_layout(flat, sparse=False)
+    assert not keeps_one_layout(vehicles, sparse=False)  # vehicles found on the device
+    assert not keeps_one_layout(flat, sparse=True)  # a changing number of non-zeros
+    # On a GPU the flat encoder's first layer stays dense, so that it is captured.
+    assert flat.use_sparse(1404, "cpu") and not flat.use_sparse(1404, "cuda")
+    assert vehicles.use_sparse(1404, "cuda")
+    pinned = small_config(encoder="flat", actor_update="tanh", sparse={"input": True})
+    assert pinned.use_sparse(1404, "cuda")
+
+
 def test_adam_keeps_its_own_capturable_when_a_state_is_loaded() -> None:
     weight = torch.nn.Parameter(torch.ones(3))
     written = DeviceAdam([weight], lr=0.1, capturable=False)
@@ -209,3 +227,15 @@ def test_a_checkpoint_loads_whatever_its_cuda_graph_was(tmp_path: Path) -> None:
     assert_same_agents(written, reader)
     with pytest.raises(Exception, match="n_step"):  # what an update computes still must match
         DDPG(GRID, ACCEL, small_config(n_step=3), seed=7).restore(tmp_path / "agent.pt")
+
+
+@cuda
+def test_table_ii_s_agent_is_dense_and_captured_on_a_gpu() -> None:
+    options = {"encoder": "flat", "actor_update": "tanh", "n_step": 1}
+    eager = DDPG(GRID, ACCEL, small_config(cuda_graph=False, **options), seed=8, device="cuda")
+    graphed = DDPG(GRID, ACCEL, small_config(**options), seed=8, device="cuda")
+    assert not graphed.sparse and graphed.update_graph is not None
+    losses = drive([eager, graphed], 120)
+    assert graphed.update_graph.captures >= 1
+    assert losses[0] == losses[1]
+    assert_same_agents(eager, graphed)

@@ -42,7 +42,7 @@ from frl.agents.precision import autocast, resolve_precision
 from frl.agents.replay_buffer import Batch, ReplayBuffer
 from frl.agents.sparse_linear import SparseRows
 from frl.agents.transitions import Teacher, TransitionWriter
-from frl.agents.update_graph import GraphedUpdate
+from frl.agents.update_graph import GraphedUpdate, keeps_one_layout
 
 Path = str | os.PathLike[str]
 
@@ -82,7 +82,7 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         self.obs_shape, self.obs_dim = self.layout.shape, self.layout.num_features
         self.action_shape, self.action_dim = self.scale.shape, self.scale.low.size
         self.action_low, self.action_high = self.scale.low, self.scale.high
-        self.sparse = cfg.use_sparse(self.obs_dim)
+        self.sparse = cfg.use_sparse(self.obs_dim, self.device.type)
         """Networks see :class:`SparseRows` batches (same function, fewer multiply-adds)."""
         self.precision = resolve_precision(cfg.precision, self.device)
         """What updates compute in: ``float32`` or ``bf16`` (acting is always float32)."""
@@ -121,7 +121,7 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         """FedProx's pull towards the global model (off until :meth:`set_proximal_anchor`)."""
         self.update_graph = (
             GraphedUpdate(self._train_step, self.device, self._tensors_read)
-            if cfg.cuda_graph and self.device.type == "cuda"
+            if cfg.cuda_graph and self.device.type == "cuda" and keeps_one_layout(cfg, self.sparse)
             else None
         )
         """The update replayed as a CUDA graph (:mod:`frl.agents.update_graph`); None

@@ -38,6 +38,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from frl.agents.config import DDPGConfig
 from frl.agents.grid_vehicles import GridVehicles
 from frl.agents.replay_buffer import Batch
 from frl.agents.sparse_linear import SparseRows
@@ -49,6 +50,15 @@ Layout = tuple[Any, ...]
 
 WARMUP_UPDATES = 3
 """Eager updates of each layout before it is captured (torch.cuda.graph's warm-up)."""
+
+
+def keeps_one_layout(config: DDPGConfig, sparse: bool) -> bool:
+    """Whether an agent's update can be captured: its batches come in a few fixed layouts
+    (the vehicles encoder reading sparse rows, whose vehicles the replay buffer lays in
+    slots; a flat encoder reading dense rows). The vehicles encoder on dense rows finds
+    each batch's vehicles on the device, a count the host must read; the flat encoder's
+    sparse rows change their number of non-zeros from batch to batch."""
+    return sparse == (config.encoder == "vehicles")
 
 
 def batch_tensors(batch: Batch) -> list[Tensor | None] | None:
