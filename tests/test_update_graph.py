@@ -239,3 +239,17 @@ def test_table_ii_s_agent_is_dense_and_captured_on_a_gpu() -> None:
     assert graphed.update_graph.captures >= 1
     assert losses[0] == losses[1]
     assert_same_agents(eager, graphed)
+
+
+def test_anchoring_again_copies_into_the_anchors_the_graph_reads() -> None:
+    agent = DDPG(GRID, ACCEL, small_config(), seed=9)
+    drive([agent], 30)
+    agent.set_proximal_anchor(0.05)
+    before = [t.data_ptr() for t in agent._tensors_read()]
+    drive([agent], 40, seed=1)  # the networks move away from their anchors
+    agent.set_proximal_anchor(0.05)  # the next round's global model
+    assert [t.data_ptr() for t in agent._tensors_read()] == before
+    for pairs in agent.proximal.anchors.values():
+        assert all(torch.equal(param, anchor) for param, anchor in pairs)
+    agent.set_proximal_anchor(0.1)  # another pull: new anchors
+    assert agent.proximal.mu == 0.1

@@ -124,14 +124,34 @@ class ProximalPull:
 
     def anchor(self, mu: float, networks: dict[object, torch.nn.Module]) -> None:
         """Pull each optimizer's network towards its parameters as they are now; mu = 0:
-        no pull."""
+        no pull. Anchoring the same networks again at the same mu (FedProx, every round)
+        copies into the anchors in place: an update captured as a CUDA graph, which reads
+        them where they lie, replays on without a new capture."""
         if not mu >= 0:
             raise ValueError(f"proximal mu must be >= 0, got {mu!r}")
+        pairs = {optimizer: list(net.parameters()) for optimizer, net in networks.items()}
+        if float(mu) == self.mu and mu > 0 and self._anchors_params(pairs):
+            anchors = [anchor for held in self.anchors.values() for _, anchor in held]
+            params = [p.detach() for held in pairs.values() for p in held]
+            with torch.no_grad():
+                torch._foreach_copy_(anchors, params)
+            return
         self.mu = float(mu)
         self.anchors = {
-            optimizer: [(p, p.detach().clone()) for p in net.parameters()] if mu else []
-            for optimizer, net in networks.items()
+            optimizer: [(p, p.detach().clone()) for p in params] if mu else []
+            for optimizer, params in pairs.items()
         }
+
+    def _anchors_params(self, pairs: dict[object, list[Tensor]]) -> bool:
+        """Whether the anchors are held for exactly these parameters."""
+        if self.anchors.keys() != pairs.keys():
+            return False
+        held = {optimizer: [param for param, _ in self.anchors[optimizer]] for optimizer in pairs}
+        return all(
+            len(held[optimizer]) == len(params)
+            and all(a is b for a, b in zip(held[optimizer], params, strict=True))
+            for optimizer, params in pairs.items()
+        )
 
     @torch.no_grad()
     def add_gradient(self, optimizer: object) -> None:
