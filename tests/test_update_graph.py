@@ -95,9 +95,19 @@ def static_path(agent: DDPG, warmup: int = 1) -> DDPG:
     return agent
 
 
-def test_the_static_batch_path_trains_exactly_as_the_eager_update() -> None:
-    eager = DDPG(GRID, ACCEL, small_config(), seed=3)
-    graphed = static_path(DDPG(GRID, ACCEL, small_config(), seed=3))
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},  # the default update
+        {"guide": "gap_acceptance", "guide_weight": 0.5},  # a teacher's actions in the batch
+        {"critic": {"kind": "quantile", "quantiles": 8}},  # quantile levels on the device
+    ],
+)
+def test_the_static_batch_path_trains_exactly_as_the_eager_update(options: dict) -> None:
+    eager = DDPG(GRID, ACCEL, small_config(**options), seed=3)
+    graphed = static_path(DDPG(GRID, ACCEL, small_config(**options), seed=3))
+    for agent in (eager, graphed):
+        agent.set_guide(lambda obs: np.full(1, 0.25, np.float32))
     losses = drive([eager, graphed], 160)
     assert losses[0] == losses[1]
     assert_same_agents(eager, graphed)
