@@ -8,7 +8,7 @@ import torch
 from gymnasium import spaces
 
 from frl.agents import DDPG, DDPGConfig, SparseRows
-from frl.agents.acting import actor_action, encode_one
+from frl.agents.acting import actor_action, encode_one, vehicles_of_one
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
 ROUTE = spaces.Dict({"grid": GRID, "route": spaces.Box(-np.inf, np.inf, (4,), np.float32)})
@@ -68,15 +68,33 @@ def test_one_observation_gets_exactly_the_networks_action(
 
 
 def test_the_numpy_pooling_equals_the_encoder_that_acting_runs_on_a_device() -> None:
-    """Off the CPU, acting runs the encoder itself on the dense row; on the CPU it pools
-    in NumPy. Both give the same numbers, up to 12 vehicles (16 slots) and a -0.0."""
+    """Off the CPU, acting hands the vehicles it found in NumPy to the encoder; on the CPU
+    it pools them in NumPy. Both give the encoder's own numbers on the dense row, up to 12
+    vehicles (16 slots) and a -0.0."""
     config = DDPGConfig(hidden_sizes=(64, 32), encoder="vehicles", precision="float32")
     encoder = DDPG(ROUTE, ACCEL, config, seed=5).actor.encoder
     flat = np.concatenate([grids(40), np.ones((40, 4), np.float32)], axis=1)
     with torch.no_grad():
         for row in flat:
-            on_device = encoder(torch.from_numpy(row[None] + np.float32(0.0)))
-            assert torch.equal(encode_one(encoder, row, torch.device("cpu")), on_device)
+            dense = encoder(torch.from_numpy(row[None] + np.float32(0.0)))
+            assert torch.equal(encode_one(encoder, row, torch.device("cpu")), dense)
+            slots = [torch.from_numpy(a) for a in vehicles_of_one(encoder, row)]
+            as_on_a_device = encoder.encode(*slots, torch.from_numpy(row[None, -4:]))
+            assert torch.equal(as_on_a_device, dense)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_acting_on_a_gpu_gets_exactly_the_networks_action() -> None:
+    config = DDPGConfig(hidden_sizes=(64, 32), encoder="vehicles", precision="float32")
+    agent = DDPG(ROUTE, ACCEL, config, seed=5, device="cuda")
+    flat = np.concatenate([grids(40), np.ones((40, 4), np.float32)], axis=1)
+    acted = np.stack([actor_action(agent.actor, row, agent.sparse) for row in flat])
+    with torch.no_grad():
+        dense = torch.from_numpy(flat + np.float32(0.0)).to("cuda")
+        whole = np.stack(
+            [agent.actor(dense[i : i + 1])[0].double().cpu().numpy() for i in range(40)]
+        )
+    assert np.array_equal(acted, whole)
 
 
 def test_act_and_predict_use_it_and_scale_to_the_bounds() -> None:

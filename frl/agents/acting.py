@@ -77,24 +77,47 @@ def _actor_input(
     return torch.from_numpy(flat.reshape(1, -1)).to(device)
 
 
-def encode_one(encoder: VehicleSetEncoder, flat: np.ndarray, device: torch.device) -> Tensor:
-    """``encoder(flat[None])`` for one flat observation; on the CPU its vehicles are found
-    and pooled in NumPy."""
+def vehicles_of_one(
+    encoder: VehicleSetEncoder, flat: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vehicles of one flat observation as the encoder lays out a batch of one:
+    ``cell`` int64 [1, slots] (in cell order), ``channels`` float32 [1, slots, C - 1] and
+    ``present`` float32 [1, slots], found in NumPy."""
+    rows, columns, channels = encoder.grid_shape
+    grid = flat[: encoder.grid_features].reshape(rows * columns, channels)
+    cells = np.flatnonzero(grid[:, -1] > 0)
+    slots = slots_for(cells.size)
+    cell = np.zeros((1, slots), np.int64)
+    cell[0, : cells.size] = cells
+    found = np.zeros((1, slots, channels - 1), np.float32)
     # + 0 turns a stored -0.0 into 0.0, as the compressed rows (which drop it) would.
+    found[0, : cells.size] = grid[cells, :-1] + np.float32(0.0)
+    present = np.zeros((1, slots), np.float32)
+    present[0, : cells.size] = 1.0
+    return cell, found, present
+
+
+def encode_one(encoder: VehicleSetEncoder, flat: np.ndarray, device: torch.device) -> Tensor:
+    """``encoder(flat[None])`` for one flat observation, its vehicles found in NumPy; on
+    the CPU they are pooled in NumPy too."""
+    cell, found, present = vehicles_of_one(encoder, flat)
     if encoder.positions.device.type != "cpu":
-        return encoder(torch.from_numpy(flat[None] + np.float32(0.0)).to(device))
+        # On a GPU the slots go over as they are: finding the vehicles there would read
+        # their count back to the host in the middle of the forward pass.
+        extra = flat[None, encoder.grid_features :] if encoder.extra_features else None
+        tensors = [torch.from_numpy(a).to(device) for a in (cell, found, present)]
+        return encoder.encode(
+            *tensors, None if extra is None else torch.from_numpy(extra).to(device)
+        )
     # On the CPU the vehicles go through the encoder's own MLP and the pooling is done in
     # NumPy: a dozen torch calls fewer. The vehicles sit in slots, as the encoder lays out a
     # batch of one (a matrix product gives the same numbers only on the same shape); a sum
     # over axis 0 from zero adds them in order, as the encoder's sum over a grid's slots
     # does, and a max is exact.
-    rows, columns, channels = encoder.grid_shape
-    grid = flat[: encoder.grid_features].reshape(rows * columns, channels)
-    cells = np.flatnonzero(grid[:, -1] > 0)
-    vehicles = np.zeros((slots_for(cells.size), 2 + channels - 1), np.float32)
-    vehicles[: cells.size, :2] = encoder.positions.numpy()[cells]
-    vehicles[: cells.size, 2:] = grid[cells, :-1] + np.float32(0.0)
-    vehicles_out = encoder.embed(torch.from_numpy(vehicles)).detach().numpy()[: cells.size]
+    count = int(present.sum())
+    vehicles = np.concatenate([encoder.positions.numpy()[cell[0]], found[0]], axis=1)
+    vehicles[count:] = 0.0
+    vehicles_out = encoder.embed(torch.from_numpy(vehicles)).detach().numpy()[:count]
     pooled = [
         np.add.reduce(vehicles_out, axis=0, initial=0.0),
         np.maximum.reduce(vehicles_out, axis=0, initial=0.0),
