@@ -115,8 +115,9 @@ def encode_one(encoder: VehicleSetEncoder, flat: np.ndarray, device: torch.devic
     # over axis 0 from zero adds them in order, as the encoder's sum over a grid's slots
     # does, and a max is exact.
     count = int(present.sum())
-    vehicles = np.concatenate([encoder.positions.numpy()[cell[0]], found[0]], axis=1)
-    vehicles[count:] = 0.0
+    vehicles = np.zeros((cell.shape[1], 2 + found.shape[2]), np.float32)
+    vehicles[:count, :2] = encoder.positions.numpy()[cell[0, :count]]
+    vehicles[:count, 2:] = found[0, :count]
     vehicles_out = encoder.embed(torch.from_numpy(vehicles)).detach().numpy()[:count]
     pooled = [
         np.add.reduce(vehicles_out, axis=0, initial=0.0),

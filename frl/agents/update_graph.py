@@ -127,7 +127,7 @@ class CapturedStep:
     ) -> None:
         tensors = batch_tensors(batch)
         assert tensors is not None, "a batch without a fixed layout cannot be captured"
-        self.step, self.device = step, device
+        self.step = step
         self.static = [None if t is None else torch.empty_like(t, device=device) for t in tensors]
         self.static_batch = rebuild_batch(batch, iter(self.static))
         pinned = device.type == "cuda"
