@@ -89,19 +89,21 @@ def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
     explorer = agent.explorer
     held = explorer.held_action
     optimizers = {
-        "actor": agent.actor_optimizer.state_dict(),
-        "critic": agent.critic_optimizer.state_dict(),
+        "actor": _own_storage(agent.actor_optimizer.state_dict()),
+        "critic": _own_storage(agent.critic_optimizer.state_dict()),
     }
     budget = None
     if agent.constraint is not None:
-        optimizers["cost_critic"] = agent.constraint.optimizer.state_dict()
+        optimizers["cost_critic"] = _own_storage(agent.constraint.optimizer.state_dict())
         budget = agent.constraint.state_dict()
     return {
         "config": agent.config.to_dict(),
         "seed": agent.seed,
         "spaces": spaces_record(agent),
         "networks": {
-            name: {key: value.detach().cpu() for key, value in net.state_dict().items()}
+            name: {
+                key: _own_storage(value.detach().cpu()) for key, value in net.state_dict().items()
+            }
             for name, net in agent.networks.networks().items()
         },
         "optimizers": optimizers,
@@ -116,6 +118,20 @@ def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
         "warmup_action": None if held is None else torch.from_numpy(held.copy()),
         "buffer": agent.buffer.state_dict() if include_buffer else None,
     }
+
+
+def _own_storage(value: Any) -> Any:
+    """``value`` with every tensor that is a view into a larger block (an agent in a
+    stacked update, :mod:`frl.agents.stacked`) copied out: ``torch.save`` writes a
+    tensor's whole storage, which would be every vehicle's rows."""
+    if isinstance(value, torch.Tensor):
+        whole = value.untyped_storage().nbytes()
+        return value.clone() if whole != value.numel() * value.element_size() else value
+    if isinstance(value, dict):
+        return {key: _own_storage(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_own_storage(item) for item in value]
+    return value
 
 
 def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:

@@ -7,8 +7,9 @@ the budget counts. The agent calls this part at four points:
 
 - acting: :meth:`CollisionConstraint.observe_cost` and
   :meth:`~CollisionConstraint.episode_ends` (the count behind the multiplier);
-- learning: :meth:`~CollisionConstraint.learn` (the cost critic's own step on the batch)
-  and :meth:`~CollisionConstraint.price` (the actor's objective under the budget).
+- learning: :meth:`~CollisionConstraint.losses` (the cost critic's loss on the batch, which
+  the agent descends with :attr:`~CollisionConstraint.optimizer`) and
+  :meth:`~CollisionConstraint.price` (the actor's objective under the budget).
 
 The cost networks themselves live in :class:`~frl.agents.networks.ActorCritic` beside the
 others, so FedAvg, targets and checkpoints treat every network alike.
@@ -29,9 +30,6 @@ from frl.agents.lagrange import PIDLagrangian
 from frl.agents.networks import ActorCritic, CostHead, Critic, make_adam
 from frl.agents.replay_buffer import Batch
 from frl.agents.sparse_linear import SparseRows
-
-Descend = Callable[[torch.optim.Optimizer, Tensor], None]
-"""One optimizer step down a loss (the agent's, with FedProx's pull where anchored)."""
 
 
 class CollisionConstraint:
@@ -118,18 +116,18 @@ class CollisionConstraint:
             return network(hidden)
         return network(obs, action)
 
-    def learn(
-        self, batch: Batch, next_actions: Tensor, discount: float | Tensor,
-        critic_hidden: tuple[Tensor, Tensor], descend: Descend,
-    ) -> dict[str, Tensor]:  # fmt: skip
-        """The cost critic's step: squared error to the n-step TD target of the discounted
-        collisions to come, bootstrapped from its own target network. ``critic_hidden``:
-        the last hidden layers of the critic at the batch and of the target critic at the
-        next states, detached (what a cost head reads)."""
+    def losses(
+        self, batch: Batch, next_actions: Tensor, discount: float | Tensor, hidden: Tensor,
+        next_hidden: Tensor,
+    ) -> tuple[Tensor, dict[str, Tensor]]:  # fmt: skip
+        """The cost critic's loss on ``batch`` (forward only): squared error to the n-step
+        TD target of the discounted collisions to come, bootstrapped from its own target
+        network. ``hidden``, ``next_hidden``: the last hidden layers of the critic at the
+        batch and of the target critic at the next states, detached (what a cost head
+        reads)."""
         nets = self.networks
         assert nets.cost_critic is not None and nets.cost_critic_target is not None
         assert batch.costs is not None
-        hidden, next_hidden = critic_hidden
         with self.autocast(), torch.no_grad():
             next_cost = self.values(
                 nets.cost_critic_target, batch.next_obs, next_actions, next_hidden
@@ -137,18 +135,23 @@ class CollisionConstraint:
         with self.autocast():
             cost_q = self.values(nets.cost_critic, batch.obs, batch.actions, hidden)
         loss = F.mse_loss(cost_q, td_target(batch.costs, batch.terminated, next_cost, discount))
-        descend(self.optimizer, loss)
-        return {"cost_critic_loss": loss.detach(), "cost_q_mean": cost_q.detach().mean()}
+        return loss, {"cost_critic_loss": loss.detach(), "cost_q_mean": cost_q.detach().mean()}
 
     def price(
-        self, value: Tensor, obs: Tensor | SparseRows, action: Tensor, hidden: Tensor | None
-    ) -> Tensor:
+        self, value: Tensor, obs: Tensor | SparseRows, action: Tensor, hidden: Tensor | None,
+        multiplier: tuple[Tensor, Tensor] | None = None,
+    ) -> Tensor:  # fmt: skip
         """The actor's objective under the budget: (value - lambda Q_c) / (1 + lambda), so
-        that its scale stays that of a return as lambda grows (Stooke et al. 2020)."""
+        that its scale stays that of a return as lambda grows (Stooke et al. 2020).
+        ``multiplier``: lambda and 1 + lambda as tensors (None: this constraint's own,
+        :attr:`multiplier_now` and :attr:`price_denominator`)."""
         assert self.networks.cost_critic is not None
         with self.autocast():
             cost = self.values(self.networks.cost_critic, obs, action, hidden)
-        return (value - self.multiplier_now * cost) / self.price_denominator
+        now, denominator = (
+            (self.multiplier_now, self.price_denominator) if multiplier is None else multiplier
+        )
+        return (value - now * cost) / denominator
 
     # ------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -45,6 +45,18 @@ from frl.agents.transitions import Teacher, TransitionWriter
 from frl.agents.update_graph import GraphedUpdate, keeps_one_layout
 
 Path = str | os.PathLike[str]
+
+
+class CriticLosses(NamedTuple):
+    """The reward critic's phase of an update: its loss and statistics, and what the
+    later phases read of it (the target actor's next actions, the critics' last hidden
+    layers, detached)."""
+
+    loss: Tensor
+    stats: dict[str, Tensor]
+    next_actions: Tensor
+    hidden: Tensor
+    next_hidden: Tensor
 
 
 class DDPG(Acting, FederatedAgent, Checkpointing):
@@ -126,6 +138,9 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         )
         """The update replayed as a CUDA graph (:mod:`frl.agents.update_graph`); None
         where updates run eagerly (a CPU, ``cuda_graph=False``)."""
+        self.stacked_in: Any = None
+        """The stacked update this agent learns in with others (:mod:`frl.agents.stacked`),
+        which holds its parameters and optimizer state; None: it learns on its own."""
         self.last_policy_action = np.full(self.action_dim, np.nan)
         """The policy's normalised action (before noise) behind the last :meth:`act`; NaN
         during the uniform warm-up."""
@@ -202,12 +217,13 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         """:meth:`update`, its losses left as tensors: reading one waits for the device, so
         a training loop reads a window's at once (:func:`frl.agents.learn.read_losses`)."""
         cfg = self.config
-        if (
-            self.num_env_steps < cfg.learning_starts
-            or len(self.buffer) < cfg.batch_size
-            or self.num_env_steps % cfg.train_freq != 0
-        ):
+        if not self.update_due():
             return {}
+        if self.stacked_in is not None:
+            raise RuntimeError(
+                "this agent learns in a stacked update with others (frl.agents.stacked): "
+                "update them together there, or release them first"
+            )
         slots = self.buffer.sample_slots(cfg.batch_size)
         transposed = cfg.encoder == "flat"
         if self.update_graph is not None:  # it copies the host batch to its static one
@@ -221,57 +237,116 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             losses.update(self.constraint.stats())
         return losses
 
-    def _train_step(self, batch: Batch) -> dict[str, Tensor]:
-        """One DDPG update (Lillicrap et al. 2016, Algorithm 1) on a sampled batch."""
-        cfg, nets = self.config, self.networks
-        # Critic: down its loss to the n-step TD target of the target networks. Q-values
-        # are float32 (precision.float32_layer), and so are the targets and the losses.
-        with self._autocast(), torch.no_grad():
-            next_actions = nets.actor_target(batch.next_obs)
-            next_q, next_hidden = nets.critic_target.values_and_hidden(batch.next_obs, next_actions)
-        with self._autocast():
-            q, hidden = nets.critic.values_and_hidden(batch.obs, batch.actions)
-        discount = cfg.gamma**batch.horizons if cfg.n_step > 1 else cfg.gamma
-        loss, td_error = critic_loss(
-            q, batch.rewards, batch.terminated, next_q, discount, cfg.critic.kind == "quantile"
+    def update_due(self) -> bool:
+        """Whether :meth:`update` would take a step now: ``learning_starts`` transitions
+        observed, a batch in the buffer, ``num_env_steps`` a multiple of ``train_freq``."""
+        cfg = self.config
+        return (
+            self.num_env_steps >= cfg.learning_starts
+            and len(self.buffer) >= cfg.batch_size
+            and self.num_env_steps % cfg.train_freq == 0
         )
-        self._descend(self.critic_optimizer, loss)
-        stats = {"critic_loss": loss.detach(), "q_mean": q.detach().mean(), "td_error": td_error}
+
+    def _train_step(self, batch: Batch) -> dict[str, Tensor]:
+        """One DDPG update (Lillicrap et al. 2016, Algorithm 1) on a sampled batch.
+
+        Its losses are computed by the forward-only phases below (:meth:`critic_losses`,
+        the constraint's :meth:`~frl.agents.constraint.CollisionConstraint.losses`,
+        :meth:`actor_losses`), which :mod:`frl.agents.stacked` runs for many vehicles at
+        once; the optimizer steps are taken here."""
+        cfg, nets = self.config, self.networks
+        critic = self.critic_losses(batch)
+        self._descend(self.critic_optimizer, critic.loss)
+        stats = dict(critic.stats)
         if self.constraint is not None:
-            critic_hidden = (hidden.detach(), next_hidden)
-            stats.update(
-                self.constraint.learn(batch, next_actions, discount, critic_hidden, self._descend)
-            )
+            cost_loss, cost_stats = self.constraint.losses(
+                batch, critic.next_actions, self.discount(batch), critic.hidden,
+                critic.next_hidden,
+            )  # fmt: skip
+            self._descend(self.constraint.optimizer, cost_loss)
+            stats.update(cost_stats)
         stats.update(self._actor_step(batch))
         # Targets: follow the online networks by Polyak averaging.
         soft_update(nets.target_parameters(), nets.online_parameters(), cfg.tau)
         return stats
 
+    def discount(self, batch: Batch) -> float | Tensor:
+        """gamma, or for n-step transitions gamma to the steps each one spans."""
+        cfg = self.config
+        return cfg.gamma**batch.horizons if cfg.n_step > 1 else cfg.gamma
+
+    def critic_losses(self, batch: Batch) -> CriticLosses:
+        """The reward critic's loss on ``batch`` (forward only): down it to the n-step TD
+        target of the target networks. Q-values are float32 (precision.float32_layer), and
+        so are the targets and the losses."""
+        nets = self.networks
+        with self._autocast(), torch.no_grad():
+            next_actions = nets.actor_target(batch.next_obs)
+            next_q, next_hidden = nets.critic_target.values_and_hidden(batch.next_obs, next_actions)
+        with self._autocast():
+            q, hidden = nets.critic.values_and_hidden(batch.obs, batch.actions)
+        loss, td_error = critic_loss(
+            q, batch.rewards, batch.terminated, next_q, self.discount(batch),
+            self.config.critic.kind == "quantile",
+        )  # fmt: skip
+        stats = {"critic_loss": loss.detach(), "q_mean": q.detach().mean(), "td_error": td_error}
+        return CriticLosses(loss, stats, next_actions, hidden.detach(), next_hidden)
+
     def _actor_step(self, batch: Batch) -> dict[str, Tensor]:
         """Up the objective's gradient at the actor's own action (plus a teacher's pull).
         The critics are frozen, so backward computes dQ/da and no critic weight gradient."""
-        cfg, nets = self.config, self.networks
+        nets = self.networks
         frozen = [net for net in (nets.critic, nets.cost_critic) if net is not None]
         for net in frozen:
             net.requires_grad_(False)
         try:
             with self._autocast():
                 preactivation = nets.actor.preactivation(batch.obs)
-            actor_loss, q_policy = self._actor_loss(batch, preactivation)
-            stats = {"actor_loss": -q_policy.detach().mean()}
-            if cfg.guide_weight > 0 and batch.guide_actions is not None:  # a teacher's pull
-                imitation = cfg.guide_weight * imitation_loss(preactivation, batch.guide_actions)
-                actor_loss = actor_loss + imitation
-                stats["imitation_loss"] = imitation.detach()
+            if self.config.actor_update == "tanh":
+                q_policy = self.objective(batch.obs, torch.tanh(preactivation))
+                dq_da = None
+            else:
+                action = self.bounded_action(preactivation)
+                q_policy = self.objective(batch.obs, action)
+                (dq_da,) = torch.autograd.grad(q_policy.sum(), action)
+            actor_loss, stats = self.actor_losses(batch, preactivation, q_policy, dq_da)
             self._descend(self.actor_optimizer, actor_loss)
         finally:
             for net in frozen:
                 net.requires_grad_(True)
         return stats
 
-    def _objective(self, obs: Tensor | SparseRows, action: Tensor) -> Tensor:
+    @staticmethod
+    def bounded_action(preactivation: Tensor) -> Tensor:
+        """Inverting gradients' action: the actor's output clipped to [-1, 1], a leaf
+        whose gradient dQ/da the actor's loss reads."""
+        return preactivation.detach().clamp(-1.0, 1.0).requires_grad_(True)
+
+    def actor_losses(
+        self, batch: Batch, preactivation: Tensor, q_policy: Tensor, dq_da: Tensor | None
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """The actor's loss from its unbounded action ``preactivation`` and the objective
+        ``q_policy`` at the action taken: ``tanh`` (``dq_da`` None), -objective(s,
+        tanh(p)); else inverting gradients with dQ/da at the clipped action; plus a
+        teacher's pull."""
+        cfg = self.config
+        if dq_da is None:
+            actor_loss = -q_policy.mean()
+        else:
+            actor_loss = inverting_gradients_loss(preactivation, dq_da)
+        stats = {"actor_loss": -q_policy.detach().mean()}
+        if cfg.guide_weight > 0 and batch.guide_actions is not None:  # a teacher's pull
+            imitation = cfg.guide_weight * imitation_loss(preactivation, batch.guide_actions)
+            actor_loss = actor_loss + imitation
+            stats["imitation_loss"] = imitation.detach()
+        return actor_loss, stats
+
+    def objective(
+        self, obs: Tensor | SparseRows, action: Tensor, price: tuple[Tensor, Tensor] | None = None
+    ) -> Tensor:
         """What the actor climbs at ``action``, per sample: Q_r (the CVaR of the return's
-        quantiles below ``cvar_alpha`` = 1), priced by a collision budget's constraint."""
+        quantiles below ``cvar_alpha`` = 1), priced by a collision budget's constraint
+        (``price``: its multiplier and 1 + multiplier; None: the constraint's own)."""
         cfg, nets, constraint = self.config, self.networks, self.constraint
         with self._autocast():
             if constraint is not None and constraint.reads_critic_hidden:
@@ -281,19 +356,8 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         if cfg.critic.kind == "quantile":
             value = lower_tail_mean(value, cfg.critic.cvar_alpha)
         if constraint is not None:
-            value = constraint.price(value, obs, action, hidden)
+            value = constraint.price(value, obs, action, hidden, price)
         return value
-
-    def _actor_loss(self, batch: Batch, preactivation: Tensor) -> tuple[Tensor, Tensor]:
-        """From the actor's unbounded action ``p``: the loss, and the objective at the
-        action taken. ``tanh``: -objective(s, tanh(p)); else inverting gradients."""
-        if self.config.actor_update == "tanh":
-            q_policy = self._objective(batch.obs, torch.tanh(preactivation))
-            return -q_policy.mean(), q_policy
-        action = preactivation.detach().clamp(-1.0, 1.0).requires_grad_(True)
-        q_policy = self._objective(batch.obs, action)
-        (dq_da,) = torch.autograd.grad(q_policy.sum(), action)
-        return inverting_gradients_loss(preactivation, dq_da), q_policy
 
     def _tensors_read(self) -> list[Tensor]:
         """What an update reads besides its batch and keeps from one update to the next:

@@ -1,0 +1,238 @@
+"""Many agents in one update (frl.agents.stacked): each learns as it would alone, to the
+rounding of a batched matrix product; its state, checkpoints and federated loads stay its
+own; a stacked run resumes exactly; what cannot be stacked is refused in one line."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+
+from frl.agents import DDPG, DDPGConfig
+from frl.agents.stacked import StackedUpdate, stacking_refusal
+
+GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
+ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
+SEEDS = (4, 5, 6)
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def small_config(**options: object) -> DDPGConfig:
+    """The default agent's update (vehicles encoder, inverting gradients, the collision
+    budget's cost head) on small networks; one-step targets, so that every agent holds a
+    batch at the same step and the agents update as often stacked as alone."""
+    fields: dict = {
+        "hidden_sizes": (32, 16), "encoder": "vehicles", "actor_update": "inverting_gradients",
+        "n_step": 1, "batch_size": 16, "buffer_size": 400, "learning_starts": 24,
+        "precision": "float32", "collision_budget": 0.02, "lagrange_window": 5,
+    }  # fmt: skip
+    fields.update(options)
+    if fields["collision_budget"] is None:
+        del fields["lagrange_window"]
+    return DDPGConfig(**fields)
+
+
+def observation(rng: np.random.Generator) -> np.ndarray:
+    """A grid with 1-7 vehicles, now and then 9-12 (a batch of 16 slots)."""
+    grid = np.zeros(GRID.shape, np.float32)
+    count = rng.integers(9, 13) if rng.random() < 0.03 else rng.integers(1, 8)
+    for cell in rng.choice(26 * 18, size=count, replace=False):
+        grid[cell // 18, cell % 18] = (rng.random(), rng.uniform(-1, 1), 1.0)
+    return grid
+
+
+def agents_of(config: DDPGConfig) -> list[DDPG]:
+    agents = [DDPG(GRID, ACCEL, config, seed=seed) for seed in SEEDS]
+    for agent in agents:
+        agent.set_guide(lambda obs: np.full(1, 0.25, np.float32))
+    return agents
+
+
+def drive(
+    agents: list[DDPG], steps: int, update: Callable[[], list[dict]], start: int = 0
+) -> list[list[dict]]:
+    """Each agent its own transitions (its own generator), in lockstep, ``update`` after
+    every step: 10-step episodes, every third of an agent's ending in a collision."""
+    losses: list[list[dict]] = []
+    for step in range(start, start + steps):
+        for k, agent in enumerate(agents):
+            rng = np.random.default_rng([k, step])
+            terminated = step % 10 == 9
+            cost = float(terminated and (step + 10 * k) % 30 == 29)
+            action = rng.uniform(-1, 1, 1).astype(np.float32)
+            agent.observe(
+                observation(rng), action, float(rng.normal()), observation(rng), terminated,
+                cost=cost,
+            )  # fmt: skip
+        losses.append(update())
+    return losses
+
+
+def stacked_updates(stacked: StackedUpdate) -> Callable[[], list[dict]]:
+    from frl.agents.learn import read_losses
+
+    return lambda: read_losses(stacked.update_unread())
+
+
+def one_by_one(agents: list[DDPG]) -> Callable[[], list[dict]]:
+    return lambda: [agent.update() for agent in agents]
+
+
+def states(agent: DDPG) -> dict[str, torch.Tensor]:
+    state = dict(agent.federated_state())
+    for name in ("actor_optimizer", "critic_optimizer"):
+        for index, moments in getattr(agent, name).state_dict()["state"].items():
+            for key, value in moments.items():
+                state[f"{name}.{index}.{key}"] = value.detach().cpu().clone()
+    return state
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},  # the default update
+        {"actor_update": "tanh", "collision_budget": None},
+        {"guide": "gap_acceptance", "guide_weight": 0.5, "n_step": 3},
+        {"critic": {"kind": "quantile", "quantiles": 8}},
+    ],
+)
+def test_each_stacked_agent_learns_as_it_would_alone(options: dict) -> None:
+    alone, together = agents_of(small_config(**options)), agents_of(small_config(**options))
+    stacked = StackedUpdate(together)
+    losses_alone = drive(alone, 60, one_by_one(alone))
+    losses_together = drive(together, 60, stacked_updates(stacked))
+    assert [a.num_updates for a in alone] == [a.num_updates for a in together] == [37] * 3
+    for a, b in zip(alone, together, strict=True):
+        state_b = states(b)
+        for key, value in states(a).items():
+            gap = (value - state_b[key]).abs().max().item()
+            assert gap < 2e-5, f"{key} differs by {gap:.3g}"
+    for step_a, step_b in zip(losses_alone, losses_together, strict=True):
+        for a, b in zip(step_a, step_b, strict=True):
+            assert a.keys() == b.keys()
+            for name in a:
+                assert b[name] == pytest.approx(a[name], rel=1e-4, abs=1e-5), name
+    # The agents learned apart: their rows differ.
+    first = together[0].federated_state()
+    assert any(not torch.equal(v, together[1].federated_state()[k]) for k, v in first.items())
+
+
+def test_an_agent_s_tensors_are_views_of_its_rows_and_in_place_loads_reach_the_update() -> None:
+    agents = agents_of(small_config())
+    stacked = StackedUpdate(agents)
+    drive(agents, 30, stacked_updates(stacked))
+    name = "critic.layers.1.weight"
+    for k, agent in enumerate(agents):
+        held = dict(agent.networks.named_parameters())[name]
+        assert held.data_ptr() == stacked.stacked[name][k].data_ptr()
+    # FedAvg's download writes into the agent's tensors: the stacked rows see it.
+    agents[2].load_federated_state(agents[0].federated_state())
+    assert torch.equal(stacked.stacked[name][2], stacked.stacked[name][0])
+    assert stacked.stackings == 1
+
+
+def test_a_stacked_agent_s_checkpoint_is_its_own_and_a_stacked_run_resumes_exactly(
+    tmp_path: Path,
+) -> None:
+    config = small_config()
+    lone = agents_of(config)
+    drive(lone, 40, one_by_one(lone))
+    lone_size = None
+    agents = agents_of(config)
+    stacked = StackedUpdate(agents)
+    drive(agents, 40, stacked_updates(stacked))
+    for k, agent in enumerate(agents):
+        agent.save(tmp_path / f"agent{k}.pt", include_buffer=True)
+    lone[0].save(tmp_path / "lone.pt", include_buffer=True)
+    lone_size = (tmp_path / "lone.pt").stat().st_size
+    # Not three agents' rows in one file: the same size as a lone agent's, to 1%.
+    assert abs((tmp_path / "agent0.pt").stat().st_size - lone_size) < 0.01 * lone_size
+    # A checkpoint loads into a lone agent as that agent's state.
+    alone = DDPG(GRID, ACCEL, config, seed=0)
+    alone.restore(tmp_path / "agent1.pt")
+    for key, value in states(agents[1]).items():
+        assert torch.equal(value, states(alone)[key]), key
+    # Killed here: fresh agents restored from the checkpoints, stacked afresh, go on
+    # exactly as the run that was not stopped.
+    resumed = agents_of(config)
+    for k, agent in enumerate(resumed):
+        agent.restore(tmp_path / f"agent{k}.pt")
+    drive(agents, 30, stacked_updates(stacked), start=40)
+    drive(resumed, 30, stacked_updates(StackedUpdate(resumed)), start=40)
+    for a, b in zip(agents, resumed, strict=True):
+        state_b = states(b)
+        for key, value in states(a).items():
+            assert torch.equal(value, state_b[key]), key
+
+
+def test_restoring_a_stacked_agent_in_place_restacks_and_goes_on_exactly(tmp_path: Path) -> None:
+    config = small_config()
+    agents, twins = agents_of(config), agents_of(config)
+    stacked, twin_stack = StackedUpdate(agents), StackedUpdate(twins)
+    drive(agents, 40, stacked_updates(stacked))
+    drive(twins, 40, stacked_updates(twin_stack))
+    for k, agent in enumerate(agents):
+        agent.save(tmp_path / f"agent{k}.pt", include_buffer=True)
+    drive(agents, 10, stacked_updates(stacked), start=40)  # steps the checkpoint undoes
+    for k, agent in enumerate(agents):
+        agent.restore(tmp_path / f"agent{k}.pt")  # replaces the optimizers' moments
+    drive(agents, 20, stacked_updates(stacked), start=40)
+    drive(twins, 20, stacked_updates(twin_stack), start=40)
+    assert stacked.stackings == 2 and twin_stack.stackings == 1
+    for a, b in zip(agents, twins, strict=True):
+        state_b = states(b)
+        for key, value in states(a).items():
+            assert torch.equal(value, state_b[key]), key
+
+
+def test_a_stacked_agent_refuses_to_learn_alone_until_released() -> None:
+    agents = agents_of(small_config())
+    stacked = StackedUpdate(agents)
+    drive(agents, 30, stacked_updates(stacked))
+    before = states(agents[1])
+    for agent in agents:
+        agent.observe(observation(np.random.default_rng(0)), np.zeros(1, np.float32), 0.0,
+                      observation(np.random.default_rng(1)), False)  # fmt: skip
+    with pytest.raises(RuntimeError, match="stacked update"):
+        agents[1].update()
+    stacked.release()
+    for key, value in states(agents[1]).items():
+        assert torch.equal(value, before[key]), key
+    name = "actor.layers.1.weight"
+    assert dict(agents[1].networks.named_parameters())[name].untyped_storage().nbytes() == (
+        dict(agents[1].networks.named_parameters())[name].numel() * 4
+    )
+    assert agents[1].update()  # on its own again
+    assert not torch.equal(states(agents[1])[name], before[name])
+
+
+def test_agents_that_cannot_share_an_update_are_refused_in_one_line() -> None:
+    agents = agents_of(small_config())
+    other = DDPG(GRID, ACCEL, small_config(actor_lr=3e-4), seed=9)
+    assert stacking_refusal([*agents, other]) == "their agent configs differ in 'actor_lr'"
+    with pytest.raises(ValueError, match="cannot learn in one stacked update"):
+        StackedUpdate([*agents, other])
+    flat = [DDPG(GRID, ACCEL, small_config(encoder="flat"), seed=s) for s in SEEDS]
+    assert "change shape" in str(stacking_refusal(flat))
+    # A different execution setting (a CUDA graph) is no obstacle.
+    assert stacking_refusal([agents[0], DDPG(GRID, ACCEL, small_config(cuda_graph=False))]) is None
+    proximal = agents_of(small_config())
+    proximal[0].set_proximal_anchor(0.1)
+    assert "FedProx" in str(stacking_refusal(proximal))
+    StackedUpdate(agents)
+    assert "already" in str(stacking_refusal(agents))
+
+
+def test_agents_out_of_lockstep_stop_the_stacked_update() -> None:
+    agents = agents_of(small_config())
+    stacked = StackedUpdate(agents)
+    drive(agents, 30, stacked_updates(stacked))
+    rng = np.random.default_rng(0)
+    agents[0].observe(observation(rng), np.zeros(1, np.float32), 0.0, observation(rng), False)
+    with pytest.raises(RuntimeError, match="out of lockstep"):
+        stacked.update_unread()
