@@ -17,6 +17,7 @@ starts. Library classes never see a DictConfig.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -28,6 +29,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from frl.agents import DDPGConfig
 from frl.agents.config import agent_fields_as_run
+from frl.agents.stacked import config_refusal
 from frl.envs import EnvConfig, RewardConfig
 from frl.envs.config import (
     RETIRED_ENV_OPTIONS,
@@ -146,6 +148,9 @@ FederationSchema = schema_of(
         ("workers", int, 0),
         # Worker processes of the processes backend; 0: one per vehicle up to
         # max(cores, 3), beyond that vehicles share them and take turns.
+        ("stack_updates", Any, "auto"),
+        # The vehicles a worker hosts train in lockstep and learn in one stacked update
+        # (frl.agents.stacked): true, false, or auto (on a GPU, where it pays).
         ("strategy", str, "fedavg"),
         # The roadside unit's aggregation (frl.federation.strategies.STRATEGIES).
         ("strategy_params", dict[str, float], {}),
@@ -311,6 +316,7 @@ def validate(
         )
     if federation["workers"] < 0:
         raise ConfigError(f"federation.workers must be >= 0, got {federation['workers']!r}")
+    stack_updates = _stack_updates(federation, agent_config, env_config, strategy, str(device))
     if (
         federation["backend"] == "flower"
         and plan.aggregates
@@ -337,9 +343,38 @@ def validate(
         strategy=strategy,
         vehicle_envs=vehicle_envs,
         workers=federation["workers"],
+        stack_updates=stack_updates,
         round_test_episodes=data["round_test_episodes"],
         collision_budget_by_task=budget_by_task,
     )
+
+
+def _stack_updates(
+    federation: dict[str, Any], agent: DDPGConfig, env: EnvConfig, strategy: StrategySpec,
+    device: str,
+) -> bool:  # fmt: skip
+    """``federation.stack_updates`` resolved: whether a worker's vehicles learn in one
+    stacked update. ``auto`` stacks on a GPU where the vehicles can be stacked; on a CPU
+    one vehicle's products already fill the cores (docs/benchmarks.md), and the
+    vehicles update one by one, as they always have."""
+    setting = federation["stack_updates"]
+    if setting not in (True, False, "auto"):
+        raise ConfigError(f"federation.stack_updates must be true, false or auto, got {setting!r}")
+    if setting is False:
+        return False
+    device_type = device.split(":")[0]
+    refusal = config_refusal(agent, math.prod(env.grid.shape), device_type)
+    if refusal is None and strategy.proximal_mu > 0:
+        refusal = f"FedProx's pull (federation.strategy={strategy.name}) is not stacked"
+    if refusal is None and federation["backend"] != "processes":
+        refusal = (
+            f"federation.backend={federation['backend']} runs each vehicle in a process of its own"
+        )
+    if setting is True and refusal is not None:
+        raise ConfigError(
+            f"federation.stack_updates=true: the vehicles cannot be stacked: {refusal}"
+        )
+    return refusal is None and (setting is True or device_type == "cuda")
 
 
 def _interval_steps(interval: int, total_steps: int, agent: dict[str, Any]) -> int:

@@ -192,6 +192,7 @@ def train_rounds(
         timeout_s=settings.worker_timeout_s,
         state_dir=run_dir,
         num_workers=workers,
+        stack_updates=settings.stack_updates,
     ) as pool:
         return run_logged(
             settings.plan,

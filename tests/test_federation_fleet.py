@@ -3,6 +3,7 @@ strategies and FedProx, vehicles sharing worker processes; and their bad input."
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from train_helpers import compose_config, tiny_spec
 
 from frl.federation import FederationPlan, ProcessClientPool
 from frl.federation.assembly import client_specs
+from frl.federation.client import ClientSpec
 from frl.federation.frames import encode_frame
 from frl.federation.plan import round_sample
 from frl.report.runs import load_run
@@ -273,3 +275,84 @@ def test_a_separate_fleet_is_tested_per_task_over_its_vehicles(tmp_path):
     assert sorted(record.episodes) == vehicles
     counted = json.loads((tmp_path / "run" / RESULTS_FILE).read_text())["training"]["episodes"]
     assert {name: len(e.returns) for name, e in record.episodes.items()} == counted
+
+
+def stackable_spec(index: int, task: str) -> ClientSpec:
+    """A tiny vehicle whose agent can be stacked: the vehicles encoder, a collision budget."""
+    spec = tiny_spec(index, task)
+    agent = dataclasses.replace(spec.agent, encoder="vehicles", collision_budget=0.02)
+    return dataclasses.replace(spec, agent=agent)
+
+
+def test_vehicles_sharing_a_worker_can_learn_in_one_stacked_update(tmp_path):
+    specs = [stackable_spec(0, "left"), stackable_spec(1, "straight"), stackable_spec(2, "right")]
+    runs = []
+    for workers, stacked in ((3, False), (1, True), (1, True)):
+        state = tmp_path / f"run{len(runs)}"
+        state.mkdir()
+        with ProcessClientPool(
+            specs, num_threads=1, num_workers=workers, stack_updates=stacked, state_dir=state
+        ) as pool:
+            first = pool.train(60, upload=True, include_targets=True)
+            pool.save(state / "round_0001")
+            second = pool.train(40, upload=True, include_targets=True)
+            alone = pool.train(20, upload=True, include_targets=True, vehicles=[2])
+        runs.append((first, second, alone))
+    (one_by_one, _, _), (stacked, stacked_second, stacked_alone), (again, again_second, _) = runs
+    for a, b in zip(one_by_one, stacked, strict=True):
+        assert a.client == b.client and a.losses["critic_loss"].shape == (60,)
+        # The same vehicles, their batched products rounded otherwise.
+        np.testing.assert_allclose(a.step_rewards, b.step_rewards, atol=1e-3)
+        for key in a.parameters:
+            np.testing.assert_allclose(a.parameters[key], b.parameters[key], atol=1e-3)
+        assert any(not torch.equal(a.parameters[k], b.parameters[k]) for k in a.parameters)
+    # One seed, one stacked run; a vehicle drawn alone trains on its own after it.
+    for a, b in zip(stacked + stacked_second, again + again_second, strict=True):
+        np.testing.assert_array_equal(a.step_rewards, b.step_rewards)
+        for key in a.parameters:
+            assert torch.equal(a.parameters[key], b.parameters[key]), key
+    assert stacked_alone[0].total_steps == 120
+    # Killed after round 1: restored from its checkpoints, the stacked run goes on exactly.
+    state = tmp_path / "run1"
+    with ProcessClientPool(
+        specs, num_threads=1, num_workers=1, stack_updates=True, state_dir=state
+    ) as pool:
+        pool.load(state / "round_0001")
+        resumed = pool.train(40, upload=True, include_targets=True)
+    for a, b in zip(stacked_second, resumed, strict=True):
+        np.testing.assert_array_equal(a.step_rewards, b.step_rewards)
+        for key in a.parameters:
+            assert torch.equal(a.parameters[key], b.parameters[key]), key
+
+
+@pytest.mark.parametrize(
+    ("overrides", "match"),
+    [
+        (["federation.stack_updates=maybe"], "stack_updates must be true, false or auto"),
+        (
+            ["federation.stack_updates=true", "agent.encoder=flat"],
+            "stack_updates=true: the vehicles cannot be stacked: their batches change shape",
+        ),
+        (
+            [
+                "federation.stack_updates=true", "federation.strategy=fedprox",
+                "+federation.strategy_params={proximal_mu: 0.01}",
+            ],
+            r"FedProx's pull \(federation.strategy=fedprox\) is not stacked",
+        ),
+        (
+            ["federation.stack_updates=true", "federation.backend=flower"],
+            "federation.backend=flower runs each vehicle in a process of its own",
+        ),
+    ],
+)  # fmt: skip
+def test_stacking_vehicles_that_cannot_be_stacked_is_refused_before_anything_runs(overrides, match):
+    with pytest.raises(ConfigError, match=match):
+        validate(compose_config(None, overrides, tiny=False))
+
+
+def test_vehicles_stack_where_asked_or_on_a_gpu_and_never_by_default_on_a_cpu():
+    assert validate(compose_config(None, [], tiny=False)).stack_updates is False
+    assert validate(compose_config(None, ["federation.stack_updates=true"], tiny=False))
+    flat = ["agent.encoder=flat"]  # auto leaves what cannot be stacked alone
+    assert validate(compose_config(None, flat, tiny=False)).stack_updates is False

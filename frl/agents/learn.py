@@ -60,12 +60,17 @@ class Step(NamedTuple):
 def training_step(agent: Learner, env: Any, obs: Any) -> Step:
     """Act with exploration, step ``env``, observe the transition (with the step's cost,
     ``info["cost"]``, where the environment reports one), update if due."""
+    return acting_step(agent, env, obs)._replace(losses=agent.update_unread())
+
+
+def acting_step(agent: Learner, env: Any, obs: Any) -> Step:
+    """:func:`training_step` without its update (``losses`` empty): for agents whose
+    update is taken elsewhere, with others' (:mod:`frl.agents.stacked`)."""
     action = agent.act(obs)
     next_obs, reward, terminated, truncated, info = env.step(action)
     cost = float(info.get("cost", 0.0)) if isinstance(info, dict) else 0.0
     agent.observe(obs, action, float(reward), next_obs, terminated, cost=cost)
-    losses = agent.update_unread()
-    return Step(action, next_obs, float(reward), terminated, truncated, info, losses)
+    return Step(action, next_obs, float(reward), terminated, truncated, info, {})
 
 
 def read_losses(steps: Sequence[Mapping[str, Any]]) -> list[dict[str, float]]:

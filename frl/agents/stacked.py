@@ -39,7 +39,7 @@ import torch
 from torch import Tensor, nn
 from torch.func import functional_call, vmap
 
-from frl.agents.config import EXECUTION_FIELDS
+from frl.agents.config import EXECUTION_FIELDS, DDPGConfig
 from frl.agents.ddpg import DDPG
 from frl.agents.functional import soft_update
 from frl.agents.grid_vehicles import GridVehicles
@@ -68,11 +68,9 @@ def stacking_refusal(agents: Sequence[DDPG]) -> str | None:
             return "they learn on different devices or in different precisions"
         if other.layout.num_features != first.layout.num_features:
             return "their observations differ in features"
-    if not keeps_one_layout(first.config, first.sparse):
-        return (
-            "their batches change shape from one update to the next (the flat encoder "
-            "reading sparse rows; agent.encoder=vehicles, or a dense first layer, keeps one)"
-        )
+    refusal = config_refusal(first.config, first.obs_dim, first.device.type)
+    if refusal is not None:
+        return refusal
     if any(agent.proximal.mu > 0 for agent in agents):
         return "FedProx's pull (federation.strategy=fedprox) is not stacked"
     if any(agent.stacked_in is not None for agent in agents):
@@ -80,10 +78,32 @@ def stacking_refusal(agents: Sequence[DDPG]) -> str | None:
     return None
 
 
+def config_refusal(config: DDPGConfig, num_features: int, device_type: str) -> str | None:
+    """Why agents of ``config`` on observations of ``num_features`` features cannot learn
+    in one stacked update on a ``device_type`` device, known from the config alone; None
+    if they can."""
+    if not keeps_one_layout(config, config.use_sparse(num_features, device_type)):
+        return (
+            "their batches change shape from one update to the next (the flat encoder "
+            "reading sparse rows; agent.encoder=vehicles, or agent.sparse.input=false, "
+            "keeps one)"
+        )
+    return None
+
+
+PER_AGENT_FIELDS: tuple[str, ...] = (
+    *EXECUTION_FIELDS, "noise", "warmup_hold_steps", "buffer_size", "collision_budget",
+    "lagrange_gains", "lagrange_window",
+)  # fmt: skip
+"""Config fields stacked agents may differ in: each agent's own exploration, buffer and
+multiplier, outside the update (a collision budget per task, say)."""
+
+
 def _learning_config(agent: DDPG) -> dict[str, Any]:
     config = agent.config.to_dict()
-    for name in EXECUTION_FIELDS:
+    for name in PER_AGENT_FIELDS:
         config.pop(name, None)
+    config["costed"], config["guided"] = agent.config.costed, agent.config.guided
     return config
 
 

@@ -15,7 +15,7 @@ import dataclasses
 import json
 import os
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,7 +25,7 @@ from gymnasium import spaces
 from torch import Tensor
 
 from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
-from frl.agents.learn import read_losses, training_step
+from frl.agents.learn import acting_step, read_losses
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
 from frl.federation.vehicle_snapshot import (
@@ -118,6 +118,44 @@ class LocalUpdate:
 
 
 ProgressCallback = Callable[..., None]
+RoundSteps = Generator[None, Mapping[str, Any], LocalUpdate]
+"""A vehicle's round, a step at a time (:meth:`VehicleClient.training_round`)."""
+
+
+def drive_rounds(
+    rounds: Sequence[RoundSteps], update: Callable[[], Sequence[Mapping[str, Any]]]
+) -> list[LocalUpdate]:
+    """Drive vehicles' rounds of equal length in lockstep: each takes a step, then
+    ``update()`` gives each its step's update losses (one list entry per round, in
+    order); their :class:`LocalUpdate` s. The updates' time is shared among them
+    equally."""
+    results: list[LocalUpdate | None] = [None] * len(rounds)
+    for steps in rounds:
+        next(steps)
+    cpu = wall = 0.0
+    while True:
+        cpu_started, wall_started = time.process_time(), time.perf_counter()
+        losses = update()
+        cpu += time.process_time() - cpu_started
+        wall += time.perf_counter() - wall_started
+        for k, (steps, step_losses) in enumerate(zip(rounds, losses, strict=True)):
+            try:
+                steps.send(step_losses)
+            except StopIteration as finished:
+                results[k] = finished.value
+        if all(result is not None for result in results):
+            share = len(rounds)
+            return [
+                dataclasses.replace(
+                    result,
+                    cpu_time_s=result.cpu_time_s + cpu / share,
+                    wall_time_s=result.wall_time_s + wall / share,
+                )
+                for result in results
+                if result is not None
+            ]
+        if any(result is not None for result in results):
+            raise ValueError("rounds driven in lockstep must take as many steps")
 
 
 class VehicleClient:
@@ -176,10 +214,26 @@ class VehicleClient:
             progress: called as ``progress(steps=, total_steps=, episodes=, last_return=)``
                 every :data:`PROGRESS_EVERY_STEPS` steps and at each episode end.
         """
+        steps = self.training_round(num_steps, upload, include_targets, progress)
+        return drive_rounds([steps], lambda: [self.agent.update_unread()])[0]
+
+    def training_round(
+        self,
+        num_steps: int,
+        upload: bool = True,
+        include_targets: bool = True,
+        progress: ProgressCallback | None = None,
+    ) -> RoundSteps:
+        """:meth:`train` one step at a time, its updates taken by whoever drives it: a
+        generator that yields after each step's transition is observed and takes that
+        step's update losses back (``send``; ``{}`` where no update ran), and returns the
+        round's :class:`LocalUpdate`. :func:`drive_rounds` drives several in lockstep, so
+        that the vehicles of a process can learn in one stacked update."""
         if num_steps <= 0:
             raise ValueError(f"num_steps must be positive, got {num_steps}")
         agent, env = self.agent, self.env
         cpu_started, wall_started = time.process_time(), time.perf_counter()
+        cpu_paused = wall_paused = 0.0
         rewards = np.empty(num_steps, np.float32)
         losses = {name: np.full(num_steps, np.nan, np.float32) for name in LOSS_NAMES}
         actions = {name: np.empty(num_steps, np.float32) for name in ACTION_SERIES}
@@ -189,13 +243,19 @@ class VehicleClient:
             if self._observation is None:
                 self._start_episode()
             observation = self._observation
-            step = training_step(agent, env, observation)
+            step = acting_step(agent, env, observation)
+            cpu_yielded, wall_yielded = time.process_time(), time.perf_counter()
+            step_losses = yield
+            # The others' steps are not this vehicle's time; the updates are (the driver
+            # adds their share).
+            cpu_paused += time.process_time() - cpu_yielded
+            wall_paused += time.perf_counter() - wall_yielded
             action, reward, info = step.action, step.reward, step.info
             next_observation, terminated, truncated = step.next_obs, step.terminated, step.truncated
             actions["executed"][i] = action[0]
             actions["policy"][i] = agent.last_policy_action[0]
-            if step.losses:
-                updates.append((i, step.losses))
+            if step_losses:
+                updates.append((i, step_losses))
             rewards[i] = reward
             self._episode_observations.append(observation)
             self._episode_actions.append(action)
@@ -247,8 +307,8 @@ class VehicleClient:
             losses=losses,
             actions=actions,
             parameters=self.get_parameters(include_targets) if upload else None,
-            cpu_time_s=time.process_time() - cpu_started,
-            wall_time_s=time.perf_counter() - wall_started,
+            cpu_time_s=time.process_time() - cpu_started - cpu_paused,
+            wall_time_s=time.perf_counter() - wall_started - wall_paused,
         )
 
     def _start_episode(self) -> None:

@@ -9,13 +9,14 @@ import os
 import shutil
 import tempfile
 import uuid
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
 from torch import Tensor
 
-from frl.federation.client import ClientSpec, LocalUpdate
+from frl.federation.client import ClientSpec, LocalUpdate, drive_rounds
 from frl.federation.codec import (
     arrays_to_tensors,
     spec_to_json,
@@ -23,7 +24,12 @@ from frl.federation.codec import (
     update_from_parts,
 )
 from frl.federation.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
-from frl.federation.vehicle_host import PARAMETERS_PREFIX, SERIES_PREFIX, VehicleHost
+from frl.federation.vehicle_host import (
+    PARAMETERS_PREFIX,
+    SERIES_PREFIX,
+    VehicleHost,
+    training_reply,
+)
 from frl.federation.workers import MessageHook, WorkerPool
 from frl.run_directory import relative_path
 
@@ -72,21 +78,42 @@ class ClientPool(Protocol):
 
 
 class VehicleGroup:
-    """The vehicles one worker process hosts, taking turns: a fleet larger than the cores
-    shares processes instead of oversubscribing them.
+    """The vehicles one worker process hosts: a fleet larger than the cores shares
+    processes instead of oversubscribing them.
 
     libsumo runs one simulation per process, so every vehicle after the first in a
     process drives its SUMO over TraCI (a SUMO child process each); both give the same
     simulation.
+
+    By default the vehicles take turns, each training its whole round in turn. With
+    ``stack_updates`` their rounds run in lockstep, a step of each at a time, and after
+    each step they learn in one stacked update (:mod:`frl.agents.stacked`): what a GPU
+    needs to be busy. A stacked run is its own run (batched products round differently
+    from single ones), reproducible from its seed and resumed exactly.
     """
 
-    def __init__(self, state_dir: str, count: int) -> None:
+    def __init__(self, state_dir: str, count: int, stack_updates: bool = False) -> None:
         self.hosts = [VehicleHost(state_dir) for _ in range(count)]
+        self.stack_updates = stack_updates
+        self.stacked: Any = None
+        """The stacked update of the agents that last trained together (None: none yet)."""
+        self._stacked_agents: tuple[int, ...] = ()
 
     def serve(
         self, frames: Sequence[bytes | None], progress: Callable[..., None] | None = None
     ) -> list[bytes | None]:
-        """Each vehicle's reply to its frame, one vehicle after the other (None: skipped)."""
+        """Each vehicle's reply to its frame (None: skipped): one vehicle after the other,
+        or a round of every vehicle in lockstep (``stack_updates``, all asked to train as
+        many steps)."""
+        if self.stack_updates:
+            requests = self._lockstep_requests(frames)
+            if requests is not None:
+                return self._serve_in_lockstep(frames, requests, progress)
+            if self.stacked is not None and any(frame is not None for frame in frames):
+                # A vehicle trains on its own (a round that drew it alone): every agent
+                # takes tensors of its own back first.
+                self.stacked.release()
+                self.stacked, self._stacked_agents = None, ()
         replies: list[bytes | None] = []
         for slot, frame in enumerate(frames):
             if frame is None:
@@ -99,9 +126,77 @@ class VehicleGroup:
             except Exception as error:
                 if len(self.hosts) == 1:
                     raise
-                vehicle = host.client.name if host.client is not None else f"slot {slot}"
-                raise RuntimeError(f"vehicle {vehicle}: {type(error).__name__}: {error}") from error
+                raise self._failure(slot, error) from error
         return replies
+
+    def _lockstep_requests(self, frames: Sequence[bytes | None]) -> dict[int, Any] | None:
+        """The train requests by slot where two or more vehicles are asked to train as
+        many steps; None otherwise (they take turns)."""
+        requests = {
+            slot: decode_frame(frame)[0] for slot, frame in enumerate(frames) if frame is not None
+        }
+        if len(requests) < 2 or any(h.get("op") != "train" for h in requests.values()):
+            return None
+        if len({int(h["num_steps"]) for h in requests.values()}) != 1:
+            return None
+        return requests
+
+    def _serve_in_lockstep(
+        self,
+        frames: Sequence[bytes | None],
+        requests: dict[int, Any],
+        progress: Callable[..., None] | None,
+    ) -> list[bytes | None]:
+        slots = list(requests)
+        rounds = []
+        for slot in slots:
+            report = None if progress is None else functools.partial(progress, slot=slot)
+            try:
+                rounds.append(self.hosts[slot].training_round(requests[slot], report))
+            except Exception as error:
+                raise self._failure(slot, error) from error
+        stacked = self._stacked_update([self.hosts[slot].client.agent for slot in slots])
+        agents = [self.hosts[slot].client.agent for slot in slots]
+        update = (  # None: they cannot share an update, each learns alone, in lockstep
+            (lambda: [agent.update_unread() for agent in agents])
+            if stacked is None
+            else stacked.update_unread
+        )
+        try:
+            updates = drive_rounds(rounds, update)
+        except Exception as error:
+            names = ", ".join(self.hosts[slot].client.name for slot in slots)
+            raise RuntimeError(
+                f"vehicles {names} (in lockstep): {type(error).__name__}: {error}"
+            ) from error
+        replies: list[bytes | None] = [None] * len(frames)
+        for slot, update in zip(slots, updates, strict=True):
+            reply, out = training_reply(update)
+            replies[slot] = encode_frame({"ok": True, **reply}, out)
+        return replies
+
+    def _stacked_update(self, agents: list[Any]) -> Any:
+        """The stacked update of ``agents``, kept from round to round while the same
+        agents train together; None if they cannot be stacked (they learn one by one)."""
+        from frl.agents.stacked import StackedUpdate, stacking_refusal
+
+        key = tuple(id(agent) for agent in agents)
+        if self.stacked is not None and key == self._stacked_agents:
+            return self.stacked
+        if self.stacked is not None:
+            self.stacked.release()
+            self.stacked, self._stacked_agents = None, ()
+        refusal = stacking_refusal(agents)
+        if refusal is not None:
+            warnings.warn(f"vehicles learn one by one: {refusal}", RuntimeWarning, stacklevel=2)
+            return None
+        self.stacked, self._stacked_agents = StackedUpdate(agents), key
+        return self.stacked
+
+    def _failure(self, slot: int, error: Exception) -> RuntimeError:
+        host = self.hosts[slot]
+        vehicle = host.client.name if host.client is not None else f"slot {slot}"
+        return RuntimeError(f"vehicle {vehicle}: {type(error).__name__}: {error}")
 
     def close(self) -> None:
         for host in self.hosts:
@@ -135,6 +230,8 @@ class ProcessClientPool:
         state_dir: the directory every checkpoint and model path lies in (the run
             directory); default: a private temporary directory.
         num_workers: worker processes (default: one per vehicle).
+        stack_updates: the vehicles a worker hosts train in lockstep and learn in one
+            stacked update (:class:`VehicleGroup`).
     """
 
     def __init__(
@@ -145,6 +242,7 @@ class ProcessClientPool:
         on_message: MessageHook | None = None,
         state_dir: str | os.PathLike[str] | None = None,
         num_workers: int | None = None,
+        stack_updates: bool = False,
     ) -> None:
         self.names = [spec.name for spec in specs]
         self.dropped: dict[str, str] = {}  # a failed worker stops the run instead
@@ -172,7 +270,7 @@ class ProcessClientPool:
         state = os.fspath(self.state_dir)
         self.workers = WorkerPool(
             [
-                (name, functools.partial(VehicleGroup, state, len(members)))
+                (name, functools.partial(VehicleGroup, state, len(members), stack_updates))
                 for name, members in zip(names, self._members, strict=True)
             ],
             num_threads=num_threads,

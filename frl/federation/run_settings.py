@@ -52,6 +52,9 @@ class TrainSettings:
     vehicle_envs: tuple[EnvConfig, ...] | None = None
     """Each vehicle's training environment where the fleet's traffic differs; None: ``env``."""
     workers: int = 0
+    stack_updates: bool = False
+    """The vehicles a worker process hosts train in lockstep and learn in one stacked
+    update (``federation.stack_updates`` resolved)."""
     round_test_episodes: int = 0
     """Test episodes per task after every round (the per-round test curve); 0: none."""
     collision_budget_by_task: Mapping[str, float] | None = None

@@ -63,32 +63,17 @@ class VehicleHost:
         progress: Callable[..., None] | None = None,
     ) -> tuple[dict[str, Any], Arrays]:
         """One request: its reply header and arrays. ``progress`` sees local training."""
-        from frl.federation.codec import (
-            arrays_to_tensors,
-            tensors_to_arrays,
-            update_to_parts,
-        )
+        from frl.federation.codec import arrays_to_tensors, tensors_to_arrays
 
         op = header["op"]
         if op == "ping":
             return {"run_key": self.run_key}, {}
         if op == "setup":
             return self._setup(str(header["run_key"]), str(header["spec"])), {}
-        client = self.client
-        if client is None or header.get("run_key") != self.run_key:
-            raise VehicleError(f"{op!r} for run {header.get('run_key')!r}, which was not set up")
+        client = self._client_for(header)
         if op == "train":
-            update = client.train(
-                int(header["num_steps"]),
-                upload=bool(header["upload"]),
-                include_targets=bool(header["include_targets"]),
-                progress=progress,
-            )
-            parameters, series, summary = update_to_parts(update)
-            out = prefixed(series, SERIES_PREFIX)
-            if parameters is not None:
-                out.update(prefixed(parameters, PARAMETERS_PREFIX))
-            return {"summary": summary, "upload": parameters is not None}, out
+            update = client.train(*_training_options(header), progress=progress)
+            return training_reply(update)
         if op == "sync":
             if header.get("parameters"):
                 parameters = arrays_to_tensors(unprefixed(arrays, PARAMETERS_PREFIX), copy=False)
@@ -107,6 +92,25 @@ class VehicleHost:
             data = np.frombuffer(client.model_file(), np.uint8)
             return {}, prefixed({MODEL_FILE_KEY: data}, PARAMETERS_PREFIX)
         raise VehicleError(f"unknown request {op!r}")
+
+    def training_round(
+        self, header: Mapping[str, Any], progress: Callable[..., None] | None = None
+    ) -> Any:
+        """A ``train`` request as the vehicle's round a step at a time
+        (:meth:`frl.federation.client.VehicleClient.training_round`), for a process that
+        drives its vehicles' rounds in lockstep; :func:`training_reply` answers it."""
+        if header.get("op") != "train":
+            raise VehicleError(f"expected a train request, got {header.get('op')!r}")
+        client = self._client_for(header)
+        return client.training_round(*_training_options(header), progress=progress)
+
+    def _client_for(self, header: Mapping[str, Any]) -> Any:
+        """The vehicle a request is for, which must have been set up for its run."""
+        if self.client is None or header.get("run_key") != self.run_key:
+            raise VehicleError(
+                f"{header.get('op')!r} for run {header.get('run_key')!r}, which was not set up"
+            )
+        return self.client
 
     def _setup(self, run_key: str, spec_json: str) -> dict[str, Any]:
         if self.client is not None and (run_key, spec_json) == (self.run_key, self.spec_json):
@@ -144,3 +148,19 @@ class VehicleHost:
                 self.client.close()
         self.client = None
         self.run_key = self.spec_json = None
+
+
+def _training_options(header: Mapping[str, Any]) -> tuple[int, bool, bool]:
+    """A train request's steps, upload and whether the upload has the target networks."""
+    return int(header["num_steps"]), bool(header["upload"]), bool(header["include_targets"])
+
+
+def training_reply(update: Any) -> tuple[dict[str, Any], Arrays]:
+    """The reply to a train request: the round's summary, its series and its upload."""
+    from frl.federation.codec import update_to_parts
+
+    parameters, series, summary = update_to_parts(update)
+    out = prefixed(series, SERIES_PREFIX)
+    if parameters is not None:
+        out.update(prefixed(parameters, PARAMETERS_PREFIX))
+    return {"summary": summary, "upload": parameters is not None}, out
