@@ -1,7 +1,7 @@
 """The learning side of a fleet's round: what its agents cost on one device, SUMO left out.
 
     python benchmarks/fleet_learning.py [--vehicles 3,12,100] [--interval 300]
-        [--device cpu] [--threads N] [--scenes PATH.npz] [--eager-too]
+        [--device cpu] [--threads N] [--scenes PATH.npz] [--eager-too] [--stacked]
 
 Builds ``N`` default agents (``agent=ddpg`` with the default budget's collision budget and
 ``train_freq`` = 8; learning from step 300, as ``fleet_scaling.py`` does) on ``--device``
@@ -13,7 +13,9 @@ the agents add to a round, not the round: the simulation's own steps (about 5-8 
 vehicle step, ``benchmarks/collection.py``) come on top, spread over the cores.
 
 On a GPU the agents' updates are captured as CUDA graphs (``DDPGConfig.cuda_graph``);
-``--eager-too`` times the same fleet with every update eager beside them.
+``--eager-too`` times the same fleet with every update eager beside them. ``--stacked``
+times it a third way: the vehicles step in lockstep and learn in one stacked update
+(:mod:`frl.agents.stacked`, ``federation.stack_updates``).
 
 Prints per fleet and way: seconds per round, milliseconds per vehicle step, and the
 device's peak memory (a GPU's ``max_memory_allocated``).
@@ -34,6 +36,7 @@ from omegaconf import OmegaConf
 
 from frl.agents import DDPG, DDPGConfig
 from frl.agents.learn import read_losses
+from frl.agents.stacked import StackedUpdate
 from frl.federation.workers import available_cores
 from frl.train_config import ConfigError, check_device
 
@@ -62,7 +65,8 @@ class Vehicle:
         self.obs = self.scenes.observations[self.position]
         self.pending: list[dict] = []
 
-    def step(self) -> None:
+    def step(self, update: bool = True) -> None:
+        """Act, observe and (``update``) update when due."""
         scenes, agent = self.scenes, self.agent
         action = agent.act(self.obs, explore=True)
         self.position = (self.position + 1) % len(scenes.observations)
@@ -71,7 +75,7 @@ class Vehicle:
         cost = float(terminated and self.position % 3 == 0)  # some episodes end in a crash
         agent.observe(self.obs, action, float(scenes.rewards[self.position]), next_obs,
                       terminated, cost=cost)  # fmt: skip
-        losses = agent.update_unread()
+        losses = agent.update_unread() if update else {}
         if losses:
             self.pending.append(losses)  # read at the round's end, as training does
         self.obs = next_obs
@@ -79,12 +83,20 @@ class Vehicle:
             agent.episode_start()
 
 
-def time_round(vehicles: list[Vehicle], interval: int, device: torch.device) -> float:
-    """Seconds for every vehicle to take ``interval`` steps, in turns."""
+def time_round(
+    vehicles: list[Vehicle], interval: int, device: torch.device,
+    stacked: StackedUpdate | None = None,
+) -> float:  # fmt: skip
+    """Seconds for every vehicle to take ``interval`` steps, in turns (or with
+    ``stacked``, in lockstep, learning in the one stacked update after each step)."""
     began = time.perf_counter()
     for _ in range(interval):
         for vehicle in vehicles:
-            vehicle.step()
+            vehicle.step(update=stacked is None)
+        if stacked is not None:
+            for vehicle, losses in zip(vehicles, stacked.update_unread(), strict=True):
+                if losses:
+                    vehicle.pending.append(losses)
     for vehicle in vehicles:
         read_losses(vehicle.pending)
         vehicle.pending.clear()
@@ -101,6 +113,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--scenes", type=Path, default=None)
     parser.add_argument("--eager-too", action="store_true")
+    parser.add_argument("--stacked", action="store_true")
     args = parser.parse_args()
     try:
         device = torch.device(check_device(args.device))
@@ -118,20 +131,23 @@ def main() -> None:
         parser.error(f"--scenes {args.scenes}: no such file")
     threads = configure_cpu_training(args.threads)
     scenes = RecordedScenes.record() if args.scenes is None else RecordedScenes.load(args.scenes)
-    ways = [True, False] if device.type == "cuda" and args.eager_too else [True]
+    ways = ["captured", "eager"] if device.type == "cuda" and args.eager_too else ["captured"]
+    ways += ["stacked"] if args.stacked else []
     print(f"torch {torch.__version__}, device {device}, {threads} threads; "
           f"a round of {args.interval} steps per vehicle, an update every 8")  # fmt: skip
     print("| vehicles | updates | s per round | ms per vehicle step | peak device memory |")
     print("|---|---|---|---|---|")
     for count in fleets:
-        for graphed in ways:
-            config = fleet_config(graphed)
+        for way in ways:
+            config = fleet_config(cuda_graph=way == "captured")
             vehicles = [Vehicle(i, config, scenes, str(device)) for i in range(count)]
-            time_round(vehicles, LEARNING_STARTS + 40, device)  # fill, warm up, capture
+            stacked = StackedUpdate([v.agent for v in vehicles]) if way == "stacked" else None
+            time_round(vehicles, LEARNING_STARTS + 40, device, stacked)  # fill, warm up
             if device.type == "cuda":
                 torch.cuda.reset_peak_memory_stats(device)
-            seconds = time_round(vehicles, args.interval, device)
-            way = "eager" if not graphed or device.type != "cuda" else "CUDA graph"
+            seconds = time_round(vehicles, args.interval, device, stacked)
+            if way == "captured":
+                way = "CUDA graph" if device.type == "cuda" else "one by one"
             memory = (
                 f"{torch.cuda.max_memory_allocated(device) / 2**30:.2f} GiB"
                 if device.type == "cuda"
@@ -139,7 +155,7 @@ def main() -> None:
             )
             per_step = 1e3 * seconds / (count * args.interval)
             print(f"| {count} | {way} | {seconds:.1f} | {per_step:.2f} | {memory} |", flush=True)
-            del vehicles
+            del vehicles, stacked
             if device.type == "cuda":
                 torch.cuda.empty_cache()
 

@@ -17,7 +17,6 @@ starts. Library classes never see a DictConfig.
 from __future__ import annotations
 
 import dataclasses
-import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -29,7 +28,6 @@ from omegaconf.errors import OmegaConfBaseException
 
 from frl.agents import DDPGConfig
 from frl.agents.config import agent_fields_as_run
-from frl.agents.stacked import config_refusal
 from frl.envs import EnvConfig, RewardConfig
 from frl.envs.config import (
     RETIRED_ENV_OPTIONS,
@@ -37,6 +35,7 @@ from frl.envs.config import (
     REWARD_NAMES,
     TRAFFIC_PRESETS,
 )
+from frl.federation.client_pool import resolve_stacking
 from frl.federation.plan import (
     FEDERATION_BACKENDS,
     FLOWER_RUNTIMES,
@@ -314,9 +313,15 @@ def validate(
             f"federation.strategy={strategy.name} steps from one global model; it needs "
             "federation.initial_model=shared"
         )
+    try:
+        stack_updates = resolve_stacking(
+            federation["stack_updates"], agent_config, env_config, strategy,
+            federation["backend"], str(device),
+        )  # fmt: skip
+    except ValueError as error:
+        raise ConfigError(str(error)) from error
     if federation["workers"] < 0:
         raise ConfigError(f"federation.workers must be >= 0, got {federation['workers']!r}")
-    stack_updates = _stack_updates(federation, agent_config, env_config, strategy, str(device))
     if (
         federation["backend"] == "flower"
         and plan.aggregates
@@ -347,34 +352,6 @@ def validate(
         round_test_episodes=data["round_test_episodes"],
         collision_budget_by_task=budget_by_task,
     )
-
-
-def _stack_updates(
-    federation: dict[str, Any], agent: DDPGConfig, env: EnvConfig, strategy: StrategySpec,
-    device: str,
-) -> bool:  # fmt: skip
-    """``federation.stack_updates`` resolved: whether a worker's vehicles learn in one
-    stacked update. ``auto`` stacks on a GPU where the vehicles can be stacked; on a CPU
-    one vehicle's products already fill the cores (docs/benchmarks.md), and the
-    vehicles update one by one, as they always have."""
-    setting = federation["stack_updates"]
-    if setting not in (True, False, "auto"):
-        raise ConfigError(f"federation.stack_updates must be true, false or auto, got {setting!r}")
-    if setting is False:
-        return False
-    device_type = device.split(":")[0]
-    refusal = config_refusal(agent, math.prod(env.grid.shape), device_type)
-    if refusal is None and strategy.proximal_mu > 0:
-        refusal = f"FedProx's pull (federation.strategy={strategy.name}) is not stacked"
-    if refusal is None and federation["backend"] != "processes":
-        refusal = (
-            f"federation.backend={federation['backend']} runs each vehicle in a process of its own"
-        )
-    if setting is True and refusal is not None:
-        raise ConfigError(
-            f"federation.stack_updates=true: the vehicles cannot be stacked: {refusal}"
-        )
-    return refusal is None and (setting is True or device_type == "cuda")
 
 
 def _interval_steps(interval: int, total_steps: int, agent: dict[str, Any]) -> int:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -16,6 +17,9 @@ from typing import Any, Protocol
 
 from torch import Tensor
 
+from frl.agents import DDPGConfig
+from frl.agents.stacked import config_refusal
+from frl.envs import EnvConfig
 from frl.federation.client import ClientSpec, LocalUpdate, drive_rounds
 from frl.federation.codec import (
     arrays_to_tensors,
@@ -24,6 +28,7 @@ from frl.federation.codec import (
     update_from_parts,
 )
 from frl.federation.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
+from frl.federation.strategies import StrategySpec
 from frl.federation.vehicle_host import (
     PARAMETERS_PREFIX,
     SERIES_PREFIX,
@@ -201,6 +206,37 @@ class VehicleGroup:
     def close(self) -> None:
         for host in self.hosts:
             host.close()
+
+
+def resolve_stacking(
+    setting: Any, agent: DDPGConfig, env: EnvConfig, strategy: StrategySpec, backend: str,
+    device: str,
+) -> bool:  # fmt: skip
+    """``federation.stack_updates`` (true, false or auto) resolved: whether a worker's
+    vehicles learn in one stacked update. ``auto`` stacks on a GPU where the vehicles can
+    be stacked; on a CPU one vehicle's products already fill the cores
+    (docs/benchmarks.md), and the vehicles update one by one, as they always have.
+
+    Raises:
+        ValueError: a setting that is none of the three, or ``true`` for vehicles that
+            cannot be stacked (saying why).
+    """
+    if setting not in (True, False, "auto"):
+        raise ValueError(f"federation.stack_updates must be true, false or auto, got {setting!r}")
+    if setting is False:
+        return False
+    refusal = None
+    if strategy.proximal_mu > 0:
+        refusal = f"FedProx's pull (federation.strategy={strategy.name}) is not stacked"
+    elif backend != "processes":
+        refusal = f"federation.backend={backend} runs each vehicle in a process of its own"
+    device_type = device.split(":")[0]
+    refusal = refusal or config_refusal(agent, math.prod(env.grid.shape), device_type)
+    if setting is True and refusal is not None:
+        raise ValueError(
+            f"federation.stack_updates=true: the vehicles cannot be stacked: {refusal}"
+        )
+    return refusal is None and (setting is True or device_type == "cuda")
 
 
 def assign_workers(num_vehicles: int, num_workers: int) -> list[tuple[int, int]]:
