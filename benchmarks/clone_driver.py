@@ -1,7 +1,8 @@
 """The cloned driver: frl's actor fitted to the gap-acceptance rule's actions alone.
 
     python benchmarks/clone_driver.py [--seeds 0,1,2,3,4] [--agent ddpg] \\
-        [--steps-per-task 10000] [--updates 9000] [--out docs/results/data/study-driver]
+        [--teacher gap_acceptance] [--steps-per-task 10000] [--updates 9000] \\
+        [--out docs/results/data/study-driver]
 
 For each run seed, the rule drives each task for ``--steps-per-task`` steps (the paper's
 budget per vehicle) on the training traffic of that seed's vehicles (the same SUMO seeds
@@ -15,6 +16,11 @@ gradient steps as a vehicle takes in a 10,000-step run), learning rate 3e-4. No 
 used. The clone drives the run seed's test episodes beside full throttle, the rule and the
 oracle (:func:`frl.evaluate.evaluate_policy`), and ``OUT/clone-seed{seed}/results.json``
 keeps its table: the row that says what a guided agent adds beyond its teacher.
+
+``--teacher committed_gap_acceptance`` clones the committed rule instead (a teacher of
+``frl.policies.TEACHERS``): it reads the distance to the stop line from the route
+observation, so it drives, labels and is tested on observations with the route beside
+the grid (``env.route_observation``), as the guided agent with that teacher sees them.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import sys
 import time
 from importlib.resources import files
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -36,7 +43,7 @@ from frl.evaluate import evaluate_policy
 from frl.federation.client import training_sumo_seed
 from frl.federation.plan import client_seeds
 from frl.fileio import write_json_atomic
-from frl.policies import GapAcceptancePolicy
+from frl.policies import TEACHERS, TEACHERS_READING_THE_ROUTE
 from frl.provenance import versions
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -70,14 +77,19 @@ def _preset_layers(path) -> list[dict]:  # type: ignore[no-untyped-def]
     return [*layers, data]
 
 
-def collect(seed: int, steps_per_task: int) -> tuple[list[np.ndarray], np.ndarray]:
-    """The rule's perturbed driving on each task: observations and the rule's labels."""
+def collect(
+    seed: int, steps_per_task: int, teacher: str = "gap_acceptance"
+) -> tuple[list[Any], np.ndarray]:
+    """The teacher's perturbed driving on each task: observations and its labels. A
+    teacher that reads the route (``committed_gap_acceptance``) drives, and labels,
+    observations with the route beside the grid."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xC10E]))
-    observations: list[np.ndarray] = []
+    observations: list[Any] = []
     labels: list[float] = []
+    route = teacher in TEACHERS_READING_THE_ROUTE
     for task, (_, env_seed) in zip(TASKS, client_seeds(seed, len(TASKS)), strict=True):
-        env = IntersectionEnv(EnvConfig(task=task))
-        rule = GapAcceptancePolicy(env.config)
+        env = IntersectionEnv(EnvConfig(task=task, route_observation=route))
+        rule = TEACHERS[teacher](env.config)
         try:
             restarts = 0
             obs, _ = env.reset(seed=training_sumo_seed(env_seed, restarts))
@@ -101,13 +113,15 @@ def collect(seed: int, steps_per_task: int) -> tuple[list[np.ndarray], np.ndarra
 
 
 def fit(
-    observations: list[np.ndarray], labels: np.ndarray, config: DDPGConfig, seed: int, updates: int
-) -> tuple[DDPG, float]:
+    observations: list[Any], labels: np.ndarray, config: DDPGConfig, seed: int, updates: int,
+    route_observation: bool = False,
+) -> tuple[DDPG, float]:  # fmt: skip
     """The preset's actor fitted to the labels; the agent and the last batch's loss."""
-    env = IntersectionEnv(EnvConfig())
+    env = IntersectionEnv(EnvConfig(route_observation=route_observation))
     agent_seed = client_seeds(seed, len(TASKS))[0][0]
     agent = DDPG(env.observation_space, env.action_space, config, seed=agent_seed)
-    rows = torch.from_numpy(np.stack([o.reshape(-1) for o in observations]))
+    env.close()
+    rows = torch.from_numpy(np.stack([agent.layout.flat(o) for o in observations]))
     targets = torch.from_numpy(labels)
     optimizer = torch.optim.Adam(agent.actor.parameters(), lr=LEARNING_RATE)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xF17]))
@@ -129,6 +143,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="0,1,2,3,4")
     parser.add_argument("--agent", default="ddpg", help="the agent= preset whose actor is fitted")
+    parser.add_argument("--teacher", default="gap_acceptance", help=f"one of {', '.join(TEACHERS)}")
     parser.add_argument("--steps-per-task", type=int, default=10_000)
     parser.add_argument("--updates", type=int, default=9_000)
     parser.add_argument("--episodes", type=int, default=100)
@@ -141,19 +156,23 @@ def main() -> None:
         parser.error(str(error))
     if min(seeds) < 0 or args.steps_per_task <= 0 or args.updates <= 0 or args.episodes <= 0:
         parser.error("seeds must be >= 0; --steps-per-task, --updates and --episodes > 0")
+    if args.teacher not in TEACHERS:
+        parser.error(f"--teacher {args.teacher!r}: choose one of {', '.join(TEACHERS)}")
+    route = args.teacher in TEACHERS_READING_THE_ROUTE
     threads = configure_cpu_training()
     for seed in seeds:
         started = time.perf_counter()
-        observations, labels = collect(seed, args.steps_per_task)
+        observations, labels = collect(seed, args.steps_per_task, args.teacher)
         collected = time.perf_counter()
-        agent, loss = fit(observations, labels, config, seed, args.updates)
+        agent, loss = fit(observations, labels, config, seed, args.updates, route)
         fitted = time.perf_counter()
-        table = evaluate_policy(agent, seed=seed, episodes=args.episodes)
+        table = evaluate_policy(agent, seed=seed, episodes=args.episodes, route_observation=route)
         results = {
             "scheme": "clone",
             "seed": seed,
             "clone": {
                 "agent": args.agent,
+                "teacher": args.teacher,
                 "agent_config": config.to_dict(),
                 "steps_per_task": args.steps_per_task,
                 "perturbation": {"probability": PERTURB_PROBABILITY, "steps": PERTURB_STEPS},
