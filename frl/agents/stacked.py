@@ -396,8 +396,7 @@ class StackedUpdate:
                     name: nn.Parameter(p.detach().clone(), p.requires_grad)
                     for name, p in named.items()
                 }
-                for role, optimizer in self._optimizers_of(agent).items():
-                    del role
+                for optimizer in self._optimizers_of(agent).values():
                     order = _names_in(optimizer, named)
                     state = defaultdict(dict)
                     for name in order:
