@@ -43,9 +43,9 @@ if _KILL_AT and not _IN_RAY:
         return reach
 
     if _point == "step":
-        frl.federation.client.training_step = _counting(frl.federation.client.training_step)
+        frl.federation.client.acting_step = _counting(frl.federation.client.acting_step)
     elif _point == "vehicle":
-        _step = frl.federation.client.training_step
+        _step = frl.federation.client.acting_step
 
         def _step_of_one_vehicle(agent, env, obs):
             global _reached
@@ -55,7 +55,7 @@ if _KILL_AT and not _IN_RAY:
                     os.kill(os.getpid(), signal.SIGKILL)
             return _step(agent, env, obs)
 
-        frl.federation.client.training_step = _step_of_one_vehicle
+        frl.federation.client.acting_step = _step_of_one_vehicle
     elif _point == "drive":
         frl.federation.client.write_vehicle_snapshot = _counting(
             frl.federation.client.write_vehicle_snapshot
