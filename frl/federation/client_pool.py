@@ -27,7 +27,14 @@ from frl.federation.codec import (
     tensors_to_arrays,
     update_from_parts,
 )
-from frl.federation.frames import Arrays, decode_frame, encode_frame, prefixed, unprefixed
+from frl.federation.frames import (
+    Arrays,
+    decode_frame,
+    encode_frame,
+    frame_header,
+    prefixed,
+    unprefixed,
+)
 from frl.federation.strategies import StrategySpec
 from frl.federation.vehicle_host import (
     PARAMETERS_PREFIX,
@@ -138,7 +145,11 @@ class VehicleGroup:
         """The train requests by slot where two or more vehicles are asked to train as
         many steps; None otherwise (they take turns)."""
         requests = {
-            slot: decode_frame(frame)[0] for slot, frame in enumerate(frames) if frame is not None
+            # Headers only: a sync request's arrays (the global model) are read where it is
+            # served, not here too.
+            slot: frame_header(frame)
+            for slot, frame in enumerate(frames)
+            if frame is not None
         }
         if len(requests) < 2 or any(h.get("op") != "train" for h in requests.values()):
             return None

@@ -45,11 +45,17 @@ def encode_frame(
     return _HEADER.pack(len(text)) + text + buffer.getvalue()
 
 
+def frame_header(frame: bytes) -> dict[str, Any]:
+    """A frame's JSON header alone, its arrays left unread."""
+    (length,) = _HEADER.unpack_from(frame)
+    return json.loads(frame[_HEADER.size : _HEADER.size + length])
+
+
 def decode_frame(frame: bytes) -> tuple[dict[str, Any], Arrays]:
     """Inverse of :func:`encode_frame`; arrays are loaded with ``allow_pickle=False``."""
     (length,) = _HEADER.unpack_from(frame)
     start = _HEADER.size
-    header = json.loads(frame[start : start + length])
+    header = frame_header(frame)
     if len(frame) == start + length:
         return header, {}
     # Read the archive in place (zipfile finds it after the header) rather than from a
