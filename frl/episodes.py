@@ -55,6 +55,9 @@ class EpisodeRecord:
     """Training only: mean over the episode's steps of Q(s_t, a_t) - G_t, the critic's
     value against the discounted return actually received; None for a truncated episode
     (its return after the cut is unknown)."""
+    teacher_drove: bool = False
+    """Training only: a guided agent's teacher drove the episode, not the agent
+    (``DDPGConfig.guide_drives``)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -160,6 +160,7 @@ class Acting:
 
     actor: Actor
     explorer: Any
+    teacher: Any
     layout: Any
     scale: ActionScale
     obs_dim: int
@@ -179,10 +180,15 @@ class Acting:
     def act(self, obs: Any, explore: bool = True) -> np.ndarray:
         """Action for one observation, float32 within the bounds: with ``explore`` the
         explorer's (held uniform warm-up actions, then the policy's plus noise), without
-        it the deterministic policy's."""
+        it the deterministic policy's. In an episode the teacher drives
+        (``DDPGConfig.guide_drives``), exploring takes the teacher's action plus the noise."""
         if explore and self.explorer.in_warmup(self.num_env_steps):
             self.last_policy_action = np.full(self.action_dim, np.nan)
             return self.scale.from_unit(self.explorer.warmup_action())
+        if explore and self.explorer.teacher_at_wheel():
+            self.last_policy_action = np.full(self.action_dim, np.nan)
+            flat = np.asarray(self.layout.flat(obs), dtype=np.float32).reshape(-1)
+            return self.scale.from_unit(self.explorer.noisy(self.teacher(flat)))
         action = self.last_policy_action = self._policy_action(self.layout.flat(obs))
         return self.scale.from_unit(self.explorer.noisy(action) if explore else action)
 

@@ -109,6 +109,7 @@ def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
         "optimizers": optimizers,
         "collision_budget": budget,
         "noise": explorer.noise.state_dict(),
+        "driver": explorer.state_dict(),
         "n_step": agent.writer.pending.state_dict(),
         "rngs": {
             "explore": generator_state(explorer.warmup_rng),
@@ -161,6 +162,10 @@ def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:
             agent.constraint.load_state_dict(data["collision_budget"])
         explorer = agent.explorer
         explorer.noise.load_state_dict(data["noise"])
+        if data.get("driver") is not None:
+            explorer.load_state_dict(data["driver"])
+        else:  # written before teachers drove: the agent drove
+            explorer.wheel_undecided, explorer.teacher_driving = False, False
         agent.writer.pending.load_state_dict(data.get("n_step", {}))
         held = data.get("warmup_action")
         explorer.held_action = None if held is None else held.numpy().astype(np.float64)

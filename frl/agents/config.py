@@ -69,6 +69,7 @@ RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] 
     "noise.dt": (lambda v: v > 0, _ANY, "be positive and finite"),
     "warmup_hold_steps": (lambda v: v >= 1, _ANY, "be >= 1 and finite"),
     "guide_weight": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
+    "guide_drives": (lambda v: v >= 0, lambda v: v <= 1, "lie in [0, 1]"),
     "critic.cvar_alpha": (lambda v: v > 0, lambda v: v <= 1, "lie in (0, 1]"),
 }
 """Numeric fields (a group's as ``group.field``): (lower check, upper check, what the
@@ -290,6 +291,14 @@ class DDPGConfig:
     actor's action and the teacher's on every sampled state (DDPG from demonstrations,
     Nair et al. 2018, with the teacher asked on the learner's own states as DAgger does,
     and no Q-filter: docs/studies.md, "What each lever bought"); 0: no term."""
+    guide_drives: float = 0.0
+    """Share of training episodes the teacher drives, with the agent's exploration noise
+    on its actions (DAgger's mixing, Ross et al. 2011, per episode; DART's noise, Laskey
+    et al. 2017): each episode after the warm-up, the teacher takes the wheel with this
+    probability, drawn from a generator of its own at the episode's first exploring
+    step. Its transitions go into the replay buffer as the agent's own do; they do not
+    count for the collision budget, which follows the agent's own driving. 0: the agent
+    always drives."""
     sparse: SparseConfig = field(default_factory=SparseConfig)
     """Whether the networks and the buffer read the observation's non-zeros alone."""
     encoder: str = "flat"
@@ -352,10 +361,11 @@ class DDPGConfig:
                 isinstance(getattr(self, name), group),
                 f"{name} must be a {group.__name__}, got {getattr(self, name)!r}",
             )
-        _require(
-            self.guide != "none" or self.guide_weight == 0,
-            "guide_weight learns from a teacher: set guide to one of " + ", ".join(GUIDES[1:]),
-        )
+        for name in ("guide_weight", "guide_drives"):
+            _require(
+                self.guide != "none" or getattr(self, name) == 0,
+                f"{name} learns from a teacher: set guide to one of " + ", ".join(GUIDES[1:]),
+            )
         self._check_cost_options()
 
     def _check_cost_options(self) -> None:

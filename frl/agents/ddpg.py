@@ -99,7 +99,9 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         self.precision = resolve_precision(cfg.precision, self.device)
         """What updates compute in: ``float32`` or ``bf16`` (acting is always float32)."""
 
-        init_seq, noise_seq, buffer_seq, warmup_seq = np.random.SeedSequence(self.seed).spawn(4)
+        init_seq, noise_seq, buffer_seq, warmup_seq, wheel_seq = np.random.SeedSequence(
+            self.seed
+        ).spawn(5)  # the first four children are those spawn(4) gave before the fifth
         if init_seed is not None:
             init_seq = np.random.SeedSequence(int(init_seed))
         init = torch.Generator().manual_seed(int(init_seq.generate_state(1, np.uint64)[0]))
@@ -118,7 +120,9 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         )
         """The collision budget (:mod:`frl.agents.constraint`); None without one."""
         rng = np.random.default_rng
-        self.explorer = Explorer(cfg, self.action_dim, rng(noise_seq), rng(warmup_seq))
+        self.explorer = Explorer(
+            cfg, self.action_dim, rng(noise_seq), rng(warmup_seq), rng(wheel_seq)
+        )
         # Compact storage whenever the observation is large, even for a dense network.
         compact = cfg.sparse.input is True or self.obs_dim >= cfg.sparse.min_features
         encoder = nets.critic.encoder
@@ -197,7 +201,8 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         cost = float(cost) if self.constraint is not None else 0.0
         self.writer.write(flat, unit, float(reward), next_flat, bool(terminated), cost)
         self.num_env_steps += 1
-        if self.constraint is not None:
+        if self.constraint is not None and not self.explorer.teacher_driving:
+            # The budget follows the agent's own driving, not its teacher's.
             self.constraint.observe_cost(cost)
         if terminated:
             self._end_training_episode()

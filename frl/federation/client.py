@@ -280,6 +280,7 @@ class VehicleClient:
                         mean_speed=mean_speed,
                         stopped_steps=stopped,
                         critic_bias=self._critic_bias() if terminated else None,
+                        teacher_drove=agent.explorer.teacher_driving,
                     )
                 )
                 self._episodes_total += 1

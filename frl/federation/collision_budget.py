@@ -39,10 +39,13 @@ def round_record(
 ) -> dict[str, Any]:
     """One vehicle's round: its finished training episodes, their collisions, the
     multiplier after the round's last update and the collision rate it followed then (its
-    last ``lagrange_window`` episodes); None without a budget or an update."""
+    last ``lagrange_window`` episodes); None without a budget or an update. Episodes its
+    teacher drove (``guide_drives``) are counted apart: the budget is the agent's."""
+    own = [episode for episode in episodes if not episode.teacher_drove]
     return {
-        "episodes": len(episodes),
-        "collisions": int(sum(episode.collision for episode in episodes)),
+        "episodes": len(own),
+        "collisions": int(sum(episode.collision for episode in own)),
+        "teacher_episodes": len(episodes) - len(own),
         "multiplier": _last_known(multipliers),
         "followed_rate": _last_known(followed_rates),
     }
