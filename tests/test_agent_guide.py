@@ -97,8 +97,115 @@ def test_the_imitation_term_pulls_the_actor_to_the_teacher():
         ({"guide": "oracle"}, "guide must be one of"),
         ({"guide_weight": -1.0}, "guide_weight"),
         ({"guide": "none", "guide_weight": 1.0}, "set guide to one of gap_acceptance, commi"),
+        ({"guide_drives": 1.5}, "guide_drives must lie in \\[0, 1\\]"),
+        ({"guide_drives": -0.1}, "guide_drives must lie in \\[0, 1\\]"),
+        ({"guide": "none", "guide_weight": 0.0, "guide_drives": 0.5}, "guide_drives learns fr"),
     ],
 )
 def test_bad_guide_settings_fail_clearly(options, message):
     with pytest.raises(ValueError, match=message):
         guided(**options)
+
+
+# ---------------------------------------------------------------- the teacher at the wheel
+def at_the_wheel(share: float, **options: object) -> DDPG:
+    """A guided agent past its warm-up whose teacher drives ``share`` of the episodes."""
+    agent = DDPG(GRID, ACCEL, guided(guide_drives=share, learning_starts=0, **options), seed=3)
+    agent.set_guide(brake_when_crowded)
+    return agent
+
+
+def drive_episodes(agent: DDPG, count: int, steps: int = 3, cost: float = 0.0) -> list[bool]:
+    """``count`` episodes of ``steps`` steps on a crowded grid: who drove each (True: the
+    teacher), read from the actions (the teacher brakes there, the untrained actor not)."""
+    crowded = np.ones(GRID.shape, np.float32)
+    drivers = []
+    for _ in range(count):
+        agent.episode_start()
+        for step in range(steps):
+            action = agent.act(crowded)
+            agent.observe(crowded, action, 0.0, crowded, step == steps - 1, cost=cost)
+        drivers.append(bool(agent.explorer.teacher_driving))
+    return drivers
+
+
+def test_the_teacher_drives_its_share_of_episodes_with_the_exploration_noise():
+    noiseless = {"noise": {"sigma": 0.0}}
+    teacher_driven = at_the_wheel(1.0, **noiseless)
+    crowded = np.ones(GRID.shape, np.float32)
+    teacher_driven.episode_start()
+    assert teacher_driven.act(crowded).tolist() == [-1.0]  # the teacher's brake
+    assert np.isnan(teacher_driven.last_policy_action).all()
+    own = at_the_wheel(0.0, **noiseless)
+    own.episode_start()
+    assert own.act(crowded) == pytest.approx(own.act(crowded, explore=False))
+    assert own.act(crowded).tolist() != [-1.0]
+    noisy = at_the_wheel(1.0, noise={"kind": "gaussian", "sigma": 0.3})
+    noisy.episode_start()
+    actions = np.array([noisy.act(np.zeros(GRID.shape, np.float32))[0] for _ in range(50)])
+    assert actions.max() == 1.0 and actions.min() < 0.8  # the teacher's +1 plus noise, clipped
+    drivers = drive_episodes(at_the_wheel(0.3), 400)
+    assert 0.24 < np.mean(drivers) < 0.36  # 0.3 of 400 episodes: 5 standard deviations
+    assert not any(drive_episodes(at_the_wheel(0.0), 50))
+
+
+def test_who_drives_is_drawn_once_an_episode_and_never_while_testing():
+    agent = at_the_wheel(0.5)
+    before = agent.explorer.state_dict()["wheel_rng"]
+    crowded = np.ones(GRID.shape, np.float32)
+    for _ in range(5):
+        agent.episode_start()
+        agent.act(crowded, explore=False)
+    assert agent.explorer.state_dict()["wheel_rng"] == before
+    drivers = []
+    for _ in range(40):
+        agent.episode_start()
+        driver = [agent.explorer.teacher_at_wheel() for _ in range(4)]
+        assert len(set(driver)) == 1
+        drivers.append(driver[0])
+    assert 0 < sum(drivers) < 40
+
+
+def test_an_episode_begun_in_the_warm_up_is_the_agents():
+    agent = DDPG(GRID, ACCEL, guided(guide_drives=1.0, learning_starts=2), seed=3)
+    agent.set_guide(brake_when_crowded)
+    drivers = drive_episodes(agent, 2)
+    assert drivers == [False, True]
+
+
+def test_the_teachers_episodes_do_not_count_for_the_budget():
+    agent = at_the_wheel(1.0, collision_budget=0.02)
+    drive_episodes(agent, 5, cost=1.0)
+    assert agent.constraint is not None
+    assert len(agent.constraint.lagrangian.recent) == 0
+    own = at_the_wheel(0.0, collision_budget=0.02)
+    drive_episodes(own, 5, cost=1.0)
+    assert own.constraint is not None
+    assert len(own.constraint.lagrangian.recent) == 5
+
+
+def test_who_drives_resumes_from_a_checkpoint(tmp_path: Path):
+    agent = at_the_wheel(0.5)
+    drive_episodes(agent, 7)
+    crowded = np.ones(GRID.shape, np.float32)
+    agent.episode_start()
+    agent.act(crowded)  # mid-episode: its driver drawn
+    agent.save(tmp_path / "mid.pt", include_buffer=True)
+    restored = DDPG.from_checkpoint(tmp_path / "mid.pt", GRID, ACCEL)
+    restored.set_guide(brake_when_crowded)
+    assert restored.explorer.teacher_driving == agent.explorer.teacher_driving
+    assert restored.act(crowded).tolist() == agent.act(crowded).tolist()
+    assert drive_episodes(restored, 20) == drive_episodes(agent, 20)
+
+
+def test_a_default_agent_draws_its_streams_as_before_the_teachers_wheel():
+    """Adding the wheel's generator (a fifth child of the seed) left the first four, and
+    so every default agent's noise, warm-up and sampling, as they were."""
+    _, _, buffer, warm_up = np.random.SeedSequence(11).spawn(4)
+    config = DDPGConfig(hidden_sizes=(16,), buffer_size=200, batch_size=4)
+    agent = DDPG(GRID, ACCEL, config, seed=11)
+    expected = np.random.default_rng(warm_up).random(3)
+    assert agent.explorer.warmup_rng.random(3).tolist() == expected.tolist()
+    assert agent.buffer.rng.random(3).tolist() == np.random.default_rng(buffer).random(3).tolist()
+    wheel = np.random.SeedSequence(11).spawn(5)[4]
+    assert agent.explorer.wheel_rng.random() == np.random.default_rng(wheel).random()

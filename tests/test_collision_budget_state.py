@@ -1,6 +1,8 @@
 """Where each vehicle's collision budget stands at the end of training
 (frl.federation.collision_budget), against hand-computed numbers."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -23,6 +25,7 @@ def test_a_round_counts_its_episodes_and_keeps_the_last_multiplier():
     assert round_record(episodes(3, 40), multipliers, rates) == {
         "episodes": 40,
         "collisions": 3,
+        "teacher_episodes": 0,
         "multiplier": 2.5,
         "followed_rate": pytest.approx(0.08),
     }
@@ -30,9 +33,21 @@ def test_a_round_counts_its_episodes_and_keeps_the_last_multiplier():
     assert round_record([], None) == {
         "episodes": 0,
         "collisions": 0,
+        "teacher_episodes": 0,
         "multiplier": None,
         "followed_rate": None,
     }
+
+
+def test_the_episodes_a_teacher_drove_are_not_the_budgets():
+    own = episodes(2, 10)
+    teachers = [dataclasses.replace(e, teacher_drove=True) for e in episodes(4, 6)]
+    record = round_record(own + teachers, None)
+    assert (record["episodes"], record["collisions"], record["teacher_episodes"]) == (10, 2, 6)
+    end = budget_end_state([record], 0.02)
+    assert end["last_round_collision_rate"] == pytest.approx(0.2)
+    (line,) = budget_lines({"client0_left": end})
+    assert "20.0% over its last round (its own episodes; its teacher drove 6 more)" in line
 
 
 def test_a_kept_budget_with_a_settled_multiplier():

@@ -62,11 +62,13 @@ def _last_known(values: np.ndarray | None) -> float | None:
 def budget_end_state(rounds: Sequence[dict[str, Any]], budget: float) -> dict[str, Any]:
     """A vehicle's budget at the end of training, from its :func:`round_record` per round.
 
-    ``kept``: the last round's training collision rate within :data:`KEPT_FACTOR` times
-    ``budget``; ``followed_collision_rate``: the rate the multiplier followed at the end
-    (None for a run recorded before it was kept); ``levelled_off``: the multiplier's
-    change over the last round within :data:`LEVELLED_SHARE` of its value or
-    :data:`LEVELLED_FLOOR` (None before two rounds with a multiplier)."""
+    ``kept``: the last round's training collision rate (of the agent's own episodes)
+    within :data:`KEPT_FACTOR` times ``budget``; ``followed_collision_rate``: the rate
+    the multiplier followed at the end (None for a run recorded before it was kept);
+    ``levelled_off``: the multiplier's change over the last round within
+    :data:`LEVELLED_SHARE` of its value or :data:`LEVELLED_FLOOR` (None before two rounds
+    with a multiplier); ``last_round_teacher_episodes``: the episodes a teacher drove
+    then (``guide_drives``), not counted."""
     rates = [r["collisions"] / r["episodes"] if r["episodes"] else None for r in rounds]
     multipliers = [r["multiplier"] for r in rounds]
     followed = rounds[-1].get("followed_rate") if rounds else None  # absent: older runs
@@ -79,6 +81,7 @@ def budget_end_state(rounds: Sequence[dict[str, Any]], budget: float) -> dict[st
     return {
         "budget": budget,
         "last_round_collision_rate": last_rate,
+        "last_round_teacher_episodes": rounds[-1].get("teacher_episodes", 0) if rounds else 0,
         "followed_collision_rate": followed,
         "kept": None if last_rate is None else last_rate <= KEPT_FACTOR * budget,
         "multiplier": known[-1] if known else None,
@@ -97,9 +100,12 @@ def budget_lines(end_states: dict[str, dict[str, Any]]) -> list[str]:
         rate = end["last_round_collision_rate"]
         budget = end["budget"]
         kept = {True: "kept", False: "NOT kept", None: "no episode"}[end["kept"]]
+        teacher = end.get("last_round_teacher_episodes", 0)
+        episodes = f" (its own episodes; its teacher drove {teacher} more)" if teacher else ""
         line = (
-            f"{vehicle}: training collisions {_percent(rate)} over its last round against a "
-            f"budget of {_percent(budget)} ({kept}, at most {KEPT_FACTOR:g} times the budget)"
+            f"{vehicle}: training collisions {_percent(rate)} over its last round{episodes} "
+            f"against a budget of {_percent(budget)} ({kept}, at most {KEPT_FACTOR:g} times "
+            "the budget)"
         )
         if end["multiplier"] is not None:
             change = end["multiplier_change_last_round"]
