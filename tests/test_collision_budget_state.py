@@ -26,6 +26,7 @@ def test_a_round_counts_its_episodes_and_keeps_the_last_multiplier():
         "episodes": 40,
         "collisions": 3,
         "teacher_episodes": 0,
+        "teacher_collisions": 0,
         "multiplier": 2.5,
         "followed_rate": pytest.approx(0.08),
     }
@@ -34,6 +35,7 @@ def test_a_round_counts_its_episodes_and_keeps_the_last_multiplier():
         "episodes": 0,
         "collisions": 0,
         "teacher_episodes": 0,
+        "teacher_collisions": 0,
         "multiplier": None,
         "followed_rate": None,
     }
@@ -43,7 +45,8 @@ def test_the_episodes_a_teacher_drove_are_not_the_budgets():
     own = episodes(2, 10)
     teachers = [dataclasses.replace(e, teacher_drove=True) for e in episodes(4, 6)]
     record = round_record(own + teachers, None)
-    assert (record["episodes"], record["collisions"], record["teacher_episodes"]) == (10, 2, 6)
+    assert (record["episodes"], record["collisions"]) == (10, 2)
+    assert (record["teacher_episodes"], record["teacher_collisions"]) == (6, 4)
     end = budget_end_state([record], 0.02)
     assert end["last_round_collision_rate"] == pytest.approx(0.2)
     (line,) = budget_lines({"client0_left": end})

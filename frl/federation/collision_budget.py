@@ -42,10 +42,12 @@ def round_record(
     last ``lagrange_window`` episodes); None without a budget or an update. Episodes its
     teacher drove (``guide_drives``) are counted apart: the budget is the agent's."""
     own = [episode for episode in episodes if not episode.teacher_drove]
+    teachers = [episode for episode in episodes if episode.teacher_drove]
     return {
         "episodes": len(own),
         "collisions": int(sum(episode.collision for episode in own)),
-        "teacher_episodes": len(episodes) - len(own),
+        "teacher_episodes": len(teachers),
+        "teacher_collisions": int(sum(episode.collision for episode in teachers)),
         "multiplier": _last_known(multipliers),
         "followed_rate": _last_known(followed_rates),
     }
