@@ -162,10 +162,7 @@ def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:
             agent.constraint.load_state_dict(data["collision_budget"])
         explorer = agent.explorer
         explorer.noise.load_state_dict(data["noise"])
-        if data.get("driver") is not None:
-            explorer.load_state_dict(data["driver"])
-        else:  # written before teachers drove: the agent drove
-            explorer.wheel_undecided, explorer.teacher_driving = False, False
+        explorer.load_state_dict(data.get("driver"))
         agent.writer.pending.load_state_dict(data.get("n_step", {}))
         held = data.get("warmup_action")
         explorer.held_action = None if held is None else held.numpy().astype(np.float64)

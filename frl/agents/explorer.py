@@ -33,7 +33,7 @@ class Explorer:
         action_dim: int,
         noise_rng: np.random.Generator,
         warmup_rng: np.random.Generator,
-        wheel_rng: np.random.Generator | None = None,
+        wheel_rng: np.random.Generator,
     ) -> None:
         self.config = config
         self.action_dim = action_dim
@@ -48,7 +48,7 @@ class Explorer:
         self.warmup_rng = warmup_rng
         self.held_action: np.ndarray | None = None
         """The warm-up action being held (checkpoints keep it)."""
-        self.wheel_rng = wheel_rng if wheel_rng is not None else np.random.default_rng(0)
+        self.wheel_rng = wheel_rng
         self.wheel_undecided = True
         """Whether the running episode's driver is still to be drawn (at its first
         exploring step after the warm-up; an episode begun in the warm-up is the agent's)."""
@@ -103,7 +103,12 @@ class Explorer:
             "teacher_driving": self.teacher_driving,
         }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
+    def load_state_dict(self, state: dict[str, Any] | None) -> None:
+        """Restore :meth:`state_dict`; None (a checkpoint written before teachers drove):
+        the agent drives the running episode."""
+        if state is None:
+            self.wheel_undecided, self.teacher_driving = False, False
+            return
         set_generator_state(self.wheel_rng, state["wheel_rng"])
         self.wheel_undecided = bool(state["wheel_undecided"])
         self.teacher_driving = bool(state["teacher_driving"])
