@@ -185,7 +185,7 @@ class Acting:
         if explore and self.explorer.in_warmup(self.num_env_steps):
             self.last_policy_action = np.full(self.action_dim, np.nan)
             return self.scale.from_unit(self.explorer.warmup_action())
-        if explore and self.explorer.teacher_at_wheel(self.num_env_steps):
+        if explore and self.explorer.teacher_at_wheel():
             self.last_policy_action = np.full(self.action_dim, np.nan)
             flat = np.asarray(self.layout.flat(obs), dtype=np.float32).reshape(-1)
             return self.scale.from_unit(self.explorer.noisy(self.teacher(flat)))

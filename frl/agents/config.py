@@ -299,11 +299,6 @@ class DDPGConfig:
     step. Its transitions go into the replay buffer as the agent's own do; they do not
     count for the collision budget, which follows the agent's own driving. 0: the agent
     always drives."""
-    guide_drives_decay_steps: int = 0
-    """Over how many environment steps after the warm-up the teacher hands the wheel
-    back: the share falls linearly from ``guide_drives`` at ``learning_starts`` to 0 this
-    many steps later, after which the agent drives every episode (DAgger's decaying
-    mixture, Ross et al. 2011). 0: the share stays ``guide_drives`` all run."""
     sparse: SparseConfig = field(default_factory=SparseConfig)
     """Whether the networks and the buffer read the observation's non-zeros alone."""
     encoder: str = "flat"
@@ -366,16 +361,6 @@ class DDPGConfig:
                 isinstance(getattr(self, name), group),
                 f"{name} must be a {group.__name__}, got {getattr(self, name)!r}",
             )
-        _require(
-            _is_int(self.guide_drives_decay_steps) and self.guide_drives_decay_steps >= 0,
-            "guide_drives_decay_steps must be a non-negative integer, "
-            f"got {self.guide_drives_decay_steps!r}",
-        )
-        _require(
-            self.guide_drives_decay_steps == 0 or self.guide_drives > 0,
-            "guide_drives_decay_steps hands the wheel back from the teacher: set "
-            "guide_drives above 0",
-        )
         for name in ("guide_weight", "guide_drives"):
             _require(
                 self.guide != "none" or getattr(self, name) == 0,

@@ -68,22 +68,12 @@ class Explorer:
         self.wheel_undecided = False
         return self.held_action
 
-    def teacher_share(self, num_env_steps: int) -> float:
-        """The share of episodes the teacher drives at this step: ``guide_drives``,
-        falling linearly to 0 over ``guide_drives_decay_steps`` after the warm-up."""
-        share, decay = self.config.guide_drives, self.config.guide_drives_decay_steps
-        if decay == 0:
-            return share
-        handed_back = (num_env_steps - self.config.learning_starts) / decay
-        return share * min(1.0, max(0.0, 1.0 - handed_back))
-
-    def teacher_at_wheel(self, num_env_steps: int) -> bool:
-        """Whether the teacher drives this exploring step (the agent's ``num_env_steps``-th
-        transition): drawn once an episode, at its first such step, so that testing (which
-        never explores) draws nothing."""
+    def teacher_at_wheel(self) -> bool:
+        """Whether the teacher drives this exploring step: drawn once an episode, at its
+        first such step, so that testing (which never explores) draws nothing."""
         if self.wheel_undecided:
             self.wheel_undecided = False
-            share = self.teacher_share(num_env_steps)
+            share = self.config.guide_drives
             self.teacher_driving = share > 0 and bool(self.wheel_rng.random() < share)
         return self.teacher_driving
 

@@ -92,8 +92,7 @@ def config_refusal(config: DDPGConfig, num_features: int, device_type: str) -> s
 
 
 PER_AGENT_FIELDS: tuple[str, ...] = (
-    *EXECUTION_FIELDS, "noise", "warmup_hold_steps", "guide_drives",
-    "guide_drives_decay_steps", "buffer_size",
+    *EXECUTION_FIELDS, "noise", "warmup_hold_steps", "guide_drives", "buffer_size",
     "collision_budget", "lagrange_gains", "lagrange_window",
 )  # fmt: skip
 """Config fields stacked agents may differ in: each agent's own exploration, buffer and
