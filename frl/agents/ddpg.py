@@ -34,7 +34,7 @@ from frl.agents.functional import (
     lower_tail_mean,
     soft_update,
 )
-from frl.agents.guide import imitation_loss
+from frl.agents.guide import imitation_loss, self_imitation_loss
 from frl.agents.learn import LearnCallback, learn, read_losses
 from frl.agents.networks import build_actor_critic, make_adam
 from frl.agents.observations import ObservationLayout
@@ -130,6 +130,7 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             cfg.buffer_size, self.obs_shape, self.action_dim, rng(buffer_seq), sparse=compact,
             sparse_width=cfg.sparse.capacity, guided=cfg.guided, costed=cfg.costed,
             vehicle_geometry=None if encoder is None else encoder.geometry,
+            tracks_returns=cfg.tracks_returns,
         )  # fmt: skip
         self.teacher = Teacher(cfg.guide, self.layout, self.scale) if cfg.guided else None
         self.writer = TransitionWriter(self.buffer, cfg.n_step, cfg.gamma, self.teacher)
@@ -328,12 +329,14 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         return preactivation.detach().clamp(-1.0, 1.0).requires_grad_(True)
 
     def actor_losses(
-        self, batch: Batch, preactivation: Tensor, q_policy: Tensor, dq_da: Tensor | None
-    ) -> tuple[Tensor, dict[str, Tensor]]:
+        self, batch: Batch, preactivation: Tensor, q_policy: Tensor, dq_da: Tensor | None,
+        price: tuple[Tensor, Tensor] | None = None,
+    ) -> tuple[Tensor, dict[str, Tensor]]:  # fmt: skip
         """The actor's loss from its unbounded action ``preactivation`` and the objective
         ``q_policy`` at the action taken: ``tanh`` (``dq_da`` None), -objective(s,
         tanh(p)); else inverting gradients with dQ/da at the clipped action; plus a
-        teacher's pull."""
+        teacher's pull and self-imitation (``price``: the budget's multiplier, as
+        :meth:`objective` takes it)."""
         cfg = self.config
         if dq_da is None:
             actor_loss = -q_policy.mean()
@@ -344,6 +347,17 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             imitation = cfg.guide_weight * imitation_loss(preactivation, batch.guide_actions)
             actor_loss = actor_loss + imitation
             stats["imitation_loss"] = imitation.detach()
+        if cfg.self_imitation > 0 and batch.returns_to_go is not None:
+            realised = batch.returns_to_go
+            if self.constraint is not None:
+                assert batch.costs_to_go is not None
+                realised = self.constraint.price_realised(realised, batch.costs_to_go, price)
+            imitation, share = self_imitation_loss(
+                preactivation, batch.actions, realised, q_policy.detach()
+            )
+            actor_loss = actor_loss + cfg.self_imitation * imitation
+            stats["self_imitation_loss"] = imitation.detach()
+            stats["self_imitation_share"] = share
         return actor_loss, stats
 
     def objective(

@@ -272,7 +272,7 @@ class StackedUpdate:
             def tanh_losses(batch: Batch, *prices: Tensor) -> Any:
                 preactivation = preactivation_of(batch)
                 q_policy = template.objective(batch.obs, torch.tanh(preactivation), _pair(prices))
-                return template.actor_losses(batch, preactivation, q_policy, None)
+                return template.actor_losses(batch, preactivation, q_policy, None, _pair(prices))
 
             def tanh_phase(
                 p: dict[str, Tensor], parts: list[Tensor | None], *prices: Tensor
@@ -295,15 +295,18 @@ class StackedUpdate:
             return functional_call(calls, p, (objective_of, batch_of(parts), action, *prices))
 
         def loss_phase(
-            parts: list[Tensor | None], preactivation: Tensor, q_policy: Tensor, dq_da: Tensor
-        ) -> Any:
-            return template.actor_losses(batch_of(parts), preactivation, q_policy, dq_da)
+            parts: list[Tensor | None], preactivation: Tensor, q_policy: Tensor, dq_da: Tensor,
+            *prices: Tensor,
+        ) -> Any:  # fmt: skip
+            return template.actor_losses(
+                batch_of(parts), preactivation, q_policy, dq_da, _pair(prices)
+            )
 
         preactivation = vmap(preactivation_phase)(actor_params, tensors)
         action = template.bounded_action(preactivation)
         q_policy = vmap(objective_phase)(frozen, tensors, action, *price)
         (dq_da,) = torch.autograd.grad(q_policy.sum(), action)
-        loss, stats = vmap(loss_phase)(tensors, preactivation, q_policy, dq_da)
+        loss, stats = vmap(loss_phase)(tensors, preactivation, q_policy, dq_da, *price)
         self._descend("actor", loss)
         return stats
 
