@@ -1,6 +1,6 @@
-"""Self-imitation (DDPGConfig.self_imitation): each stored transition's realised return and
-cost to its episode's end, the imitation term, the priced comparison, resume; each
-against hand-computed numbers or its defining property."""
+"""Self-imitation (DDPGConfig.self_imitation): each stored transition's realised return to
+its episode's end, the imitation term, the comparison with the reward critic, resume;
+each against hand-computed numbers or its defining property."""
 
 from pathlib import Path
 
@@ -20,10 +20,8 @@ ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-def writer_of(capacity: int = 50, n_step: int = 3, costed: bool = True) -> TransitionWriter:
-    buffer = ReplayBuffer(
-        capacity, (2,), 1, np.random.default_rng(0), costed=costed, tracks_returns=True
-    )
+def writer_of(capacity: int = 50, n_step: int = 3) -> TransitionWriter:
+    buffer = ReplayBuffer(capacity, (2,), 1, np.random.default_rng(0), tracks_returns=True)
     return TransitionWriter(buffer, n_step, gamma=0.5)
 
 
@@ -36,16 +34,14 @@ def write_episode(writer: TransitionWriter, rewards: list[float], costs: list[fl
     writer.end_episode()
 
 
-def test_an_ended_episode_labels_each_transition_with_its_return_and_cost_to_go():
+def test_an_ended_episode_labels_each_transition_with_its_return_to_go():
     writer = writer_of()
     write_episode(writer, [1.0, 2.0, 4.0, 8.0], [0.0, 0.0, 0.0, 1.0], terminated=True)
     buffer = writer.buffer
     # gamma 0.5: G3 = 8, G2 = 4 + 4 = 8, G1 = 2 + 4 = 6, G0 = 1 + 3 = 4
     assert buffer.returns_to_go[:4].tolist() == [4.0, 6.0, 8.0, 8.0]
-    assert buffer.costs_to_go[:4].tolist() == [0.125, 0.25, 0.5, 1.0]
     batch = buffer.gather(np.array([3, 0]))
     assert batch.returns_to_go.tolist() == [8.0, 4.0]
-    assert batch.costs_to_go.tolist() == [1.0, 0.125]
 
 
 def test_a_cut_off_episode_stays_unknown_and_a_rewritten_slot_forgets_its_return():
@@ -60,11 +56,10 @@ def test_a_cut_off_episode_stays_unknown_and_a_rewritten_slot_forgets_its_return
 
 
 def test_an_episode_longer_than_the_buffer_labels_only_the_slots_it_still_holds():
-    writer = writer_of(capacity=3, n_step=1, costed=False)
+    writer = writer_of(capacity=3, n_step=1)
     write_episode(writer, [0.0, 0.0, 4.0, 2.0, 8.0], [0.0] * 5, terminated=True)
     # Steps 2, 3, 4 (returns 7, 6, 8) now lie in slots 2, 0, 1.
     assert writer.buffer.returns_to_go.tolist() == [6.0, 8.0, 7.0]
-    assert writer.buffer.costs_to_go.size == 0
 
 
 def test_the_self_imitation_loss_by_hand():
@@ -98,13 +93,25 @@ def test_the_term_pulls_the_actor_towards_actions_that_went_better_than_expected
     assert agent.predict(empty)[0][0] == pytest.approx(-0.8, abs=0.05)
 
 
-def test_under_a_budget_the_realised_return_is_priced_as_the_objective_is():
+def test_under_a_budget_the_return_is_compared_with_the_reward_critic_not_the_objective():
     agent = DDPG(GRID, ACCEL, small(collision_budget=0.02), seed=2)
-    constraint = agent.constraint
-    constraint.multiplier_now.fill_(3.0)
-    constraint.price_denominator.fill_(4.0)
-    priced = constraint.price_realised(torch.tensor([4.0, 4.0]), torch.tensor([0.0, 1.0]))
-    assert priced.tolist() == [1.0, 0.25]
+    agent.constraint.multiplier_now.fill_(3.0)
+    agent.constraint.price_denominator.fill_(4.0)
+    empty = np.zeros(GRID.shape, np.float32)
+    for _ in range(8):
+        agent.observe(empty, np.array([0.5], np.float32), 1.0, empty, True)
+    batch = agent.buffer.gather(np.arange(8), agent.sparse, transposed=False)
+    with torch.no_grad():
+        action = torch.full((8, 1), 0.5)
+        objective, value = agent.objective_and_value(batch.obs, action)
+        assert torch.equal(value, agent.critic(batch.obs, action))
+        assert torch.equal(objective, agent.objective(batch.obs, action))
+        preactivation = torch.zeros(8, 1)
+        below = batch._replace(returns_to_go=value - 0.01)
+        _, stats = agent.actor_losses(below, preactivation, value - 1.0, None, value)
+        assert stats["self_imitation_share"].item() == 0.0  # the objective would say 1
+        _, stats = agent.actor_losses(below, preactivation, value - 1.0, None)
+        assert stats["self_imitation_share"].item() == 1.0  # no value given: the objective
 
 
 def test_a_run_interrupted_mid_episode_labels_the_episode_as_the_uninterrupted_one(
@@ -125,7 +132,6 @@ def test_a_run_interrupted_mid_episode_labels_the_episode_as_the_uninterrupted_o
     resumed = DDPG.from_checkpoint(tmp_path / "mid.pt", GRID, ACCEL)
     steps(resumed, 22, 40)
     np.testing.assert_array_equal(resumed.buffer.returns_to_go, whole.buffer.returns_to_go)
-    np.testing.assert_array_equal(resumed.buffer.costs_to_go, whole.buffer.costs_to_go)
     assert not np.isnan(whole.buffer.returns_to_go[18:27]).any()
     for key, value in whole.federated_state().items():
         assert torch.equal(value, resumed.federated_state()[key]), key

@@ -303,12 +303,12 @@ class DDPGConfig:
     self_imitation: float = 0.0
     """Weight of self-imitation (Oh et al. 2018, "Self-Imitation Learning") in the actor's
     loss: the squared distance between the actor's action and the action the agent took
-    itself, on the sampled states whose episode's realised discounted return (priced by
-    the collision budget as the objective is) beat the critic's value of the actor's own
-    action there. The agent learns only from its own driving, pulled towards what went
-    better than its critic expected. A return is known once its episode has ended
-    (arrived or collided); states of episodes cut off by a time limit are never
-    imitated. 0: no term."""
+    itself, on the sampled states whose episode's realised discounted return beat the
+    reward critic's value of the actor's own action there (under a collision budget too:
+    the budget prices the objective, not this comparison). The agent learns only from its
+    own driving, pulled towards what went better than its critic expected. A return is
+    known once its episode has ended (arrived or collided); states of episodes cut off by
+    a time limit are never imitated. 0: no term."""
     sparse: SparseConfig = field(default_factory=SparseConfig)
     """Whether the networks and the buffer read the observation's non-zeros alone."""
     encoder: str = "flat"

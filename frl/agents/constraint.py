@@ -153,16 +153,6 @@ class CollisionConstraint:
         )
         return (value - now * cost) / denominator
 
-    def price_realised(
-        self, returns: Tensor, costs: Tensor, multiplier: tuple[Tensor, Tensor] | None = None
-    ) -> Tensor:
-        """Realised returns and collisions to come, priced as :meth:`price` prices the
-        critics' estimates of them."""
-        now, denominator = (
-            (self.multiplier_now, self.price_denominator) if multiplier is None else multiplier
-        )
-        return (returns - now * costs) / denominator
-
     # ------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:
         """The multiplier and the running episode's count, as checkpoints keep them (the

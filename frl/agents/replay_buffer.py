@@ -45,8 +45,6 @@ class Batch(NamedTuple):
     returns_to_go: Tensor | None = None
     """The realised discounted return from ``obs`` to its episode's end, NaN where not
     known, where the buffer keeps them (self-imitation)."""
-    costs_to_go: Tensor | None = None
-    """The same for the collisions, where the buffer keeps both returns and costs."""
 
     def to(self, device: Any) -> Batch:
         """The same batch on ``device`` (copies from the host do not wait)."""
@@ -177,8 +175,8 @@ class ReplayBuffer:
         vehicle_geometry: a vehicles encoder's ``geometry``
             (:class:`frl.agents.vehicle_encoder.VehicleSetEncoder`): compact batches come
             with their vehicles, found once per batch in NumPy.
-        tracks_returns: keep each transition's realised return to its episode's end (and
-            cost, where ``costed``), NaN until :meth:`set_returns` fills it.
+        tracks_returns: keep each transition's realised return to its episode's end, NaN
+            until :meth:`set_returns` fills it.
     """
 
     def __init__(
@@ -224,9 +222,6 @@ class ReplayBuffer:
         self.returns_to_go = committed_when_written(
             (capacity if tracks_returns else 0,), np.float32
         )
-        self.costs_to_go = committed_when_written(
-            (capacity if tracks_returns and costed else 0,), np.float32
-        )
         self.pos = 0
         self.size = 0
 
@@ -239,7 +234,7 @@ class ReplayBuffer:
         obs_bytes = self._obs.nbytes + self._next_obs.nbytes
         scalars = self.actions.nbytes + self.rewards.nbytes + self.terminated.nbytes
         labels = self.guide_actions.nbytes + self.costs.nbytes
-        return obs_bytes + scalars + labels + self.returns_to_go.nbytes + self.costs_to_go.nbytes
+        return obs_bytes + scalars + labels + self.returns_to_go.nbytes
 
     def add(
         self,
@@ -282,23 +277,15 @@ class ReplayBuffer:
             self.costs[slot] = cost
         if self.tracks_returns:  # unknown until the episode ends
             self.returns_to_go[slot] = np.nan
-            if self.costed:
-                self.costs_to_go[slot] = np.nan
         self.pos = (slot + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
-    def set_returns(
-        self, slots: np.ndarray, returns: np.ndarray, costs: np.ndarray | None = None
-    ) -> None:
-        """The realised returns (and costs, where ``costed``) to their episode's end of
-        the transitions at ``slots``, once their episode has ended."""
+    def set_returns(self, slots: np.ndarray, returns: np.ndarray) -> None:
+        """The realised returns to their episode's end of the transitions at ``slots``,
+        once their episode has ended."""
         if not self.tracks_returns:
             raise ValueError("this buffer keeps no returns to go (tracks_returns=False)")
         self.returns_to_go[slots] = returns
-        if self.costed:
-            if costs is None:
-                raise ValueError("a costed buffer needs the costs to go as well")
-            self.costs_to_go[slots] = costs
 
     def _observations(
         self, store: Any, slots: np.ndarray, as_sparse: bool, transposed: bool = False
@@ -340,7 +327,6 @@ class ReplayBuffer:
             torch.from_numpy(self.guide_actions[slots]) if self.guided else None,
             torch.from_numpy(self.costs[slots]) if self.costed else None,
             torch.from_numpy(self.returns_to_go[slots]) if self.tracks_returns else None,
-            torch.from_numpy(self.costs_to_go[slots]) if self.costs_to_go.size else None,
         )
         return batch if torch.device(device).type == "cpu" else batch.to(device)
 
@@ -351,7 +337,6 @@ class ReplayBuffer:
             + (("guide_actions",) if self.guided else ())
             + (("costs",) if self.costed else ())
             + (("returns_to_go",) if self.tracks_returns else ())
-            + (("costs_to_go",) if self.costs_to_go.size else ())
         )
 
     def state_dict(self) -> dict[str, Any]:

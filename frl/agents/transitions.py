@@ -46,9 +46,9 @@ class Teacher:
 
 
 class EpisodeReturns:
-    """The running episode's one-step rewards and costs and the buffer slots its
-    transitions went to; when the episode ends (it arrived or collided), each transition's
-    realised discounted return and cost to the end go into the buffer. An episode cut off
+    """The running episode's one-step rewards and the buffer slots its transitions went
+    to; when the episode ends (it arrived or collided), each transition's realised
+    discounted return to the end goes into the buffer. An episode cut off
     (a time limit) has no realised return: its transitions stay unknown (NaN).
 
     The k-th transition an episode stores starts at its k-th step: the n-step accumulator
@@ -58,13 +58,11 @@ class EpisodeReturns:
     def __init__(self, buffer: ReplayBuffer, gamma: float) -> None:
         self.buffer, self.gamma = buffer, gamma
         self.rewards: list[float] = []
-        self.costs: list[float] = []
         self.slots: list[int] = []
 
-    def step(self, reward: float, cost: float) -> None:
+    def step(self, reward: float) -> None:
         """One environment step of the running episode."""
         self.rewards.append(reward)
-        self.costs.append(cost)
 
     def stored(self, slot: int) -> None:
         """The running episode's next transition went to ``slot``."""
@@ -77,11 +75,11 @@ class EpisodeReturns:
                 raise RuntimeError(
                     f"{len(self.slots)} transitions stored for {len(self.rewards)} steps"
                 )
-            returns, costs = self._discounted(self.rewards), self._discounted(self.costs)
+            returns = self._discounted(self.rewards)
             # An episode longer than the buffer overwrote its own first slots.
             keep = min(len(self.slots), self.buffer.capacity)
-            self.buffer.set_returns(np.asarray(self.slots[-keep:]), returns[-keep:], costs[-keep:])
-        self.rewards, self.costs, self.slots = [], [], []
+            self.buffer.set_returns(np.asarray(self.slots[-keep:]), returns[-keep:])
+        self.rewards, self.slots = [], []
 
     def _discounted(self, values: list[float]) -> np.ndarray:
         """G_t = v_t + gamma G_{t+1}, from each step to the end."""
@@ -96,13 +94,11 @@ class EpisodeReturns:
         """The running episode so far (checkpoints load with ``weights_only=True``)."""
         return {
             "rewards": torch.tensor(self.rewards, dtype=torch.float64),
-            "costs": torch.tensor(self.costs, dtype=torch.float64),
             "slots": torch.tensor(self.slots, dtype=torch.int64),
         }
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
         self.rewards = [float(v) for v in state["rewards"]]
-        self.costs = [float(v) for v in state["costs"]]
         self.slots = [int(v) for v in state["slots"]]
 
 
@@ -136,7 +132,7 @@ class TransitionWriter:
         """One step (``action`` normalised). ``terminated`` excludes time-limit cut-offs,
         which must still bootstrap; ``cost``: the step's collisions, where counted."""
         if self.returns is not None:
-            self.returns.step(reward, cost)
+            self.returns.step(reward)
         for transition in self.pending.push(obs, action, reward, next_obs, terminated, 1, cost):
             self._store(*transition)
         if terminated and self.returns is not None:

@@ -39,7 +39,8 @@ from frl.policies import install_guide
 
 LOSS_NAMES: tuple[str, ...] = (
     "critic_loss", "actor_loss", "q_mean", "td_error", "imitation_loss",
-    "self_imitation_loss", "self_imitation_share", "cost_critic_loss", "cost_q_mean", "lagrange_multiplier", "collision_rate",
+    "self_imitation_loss", "self_imitation_share",
+    "cost_critic_loss", "cost_q_mean", "lagrange_multiplier", "collision_rate",
 )  # fmt: skip
 """Per-step learning statistics a client reports (NaN on steps without an update);
 ``td_error`` is the batch's mean |Q(s, a) - (r + gamma Q'(s', mu'(s')))|; a guided agent's
