@@ -98,7 +98,6 @@ def states(agent: DDPG) -> dict[str, torch.Tensor]:
         {},  # the default update
         {"actor_update": "tanh", "collision_budget": None},
         {"guide": "gap_acceptance", "guide_weight": 0.5, "n_step": 3},
-        {"self_imitation": 0.5, "n_step": 3},  # priced by each agent's own multiplier
         {"critic": {"kind": "quantile", "quantiles": 8}},
     ],
 )

@@ -84,15 +84,15 @@ def spaces_record(agent: Any) -> dict[str, Any]:
 def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
     """Everything :meth:`frl.agents.DDPG.restore` needs to go on exactly: config, spaces,
     networks, optimizers, the explorer's noise and generators, the pending n-step steps,
-    the running episode's steps (self-imitation's returns to go), counters, a collision
-    budget's multiplier and running episode (and the replay buffer)."""
+    counters, a collision budget's multiplier and running episode (and the replay
+    buffer)."""
     explorer = agent.explorer
     held = explorer.held_action
     optimizers = {
         "actor": _own_storage(agent.actor_optimizer.state_dict()),
         "critic": _own_storage(agent.critic_optimizer.state_dict()),
     }
-    budget, returns = None, agent.writer.returns
+    budget = None
     if agent.constraint is not None:
         optimizers["cost_critic"] = _own_storage(agent.constraint.optimizer.state_dict())
         budget = agent.constraint.state_dict()
@@ -111,7 +111,6 @@ def agent_payload(agent: Any, include_buffer: bool) -> dict[str, Any]:
         "noise": explorer.noise.state_dict(),
         "driver": explorer.state_dict(),
         "n_step": agent.writer.pending.state_dict(),
-        "episode_returns": None if returns is None else returns.state_dict(),
         "rngs": {
             "explore": generator_state(explorer.warmup_rng),
             "buffer": generator_state(agent.buffer.rng),
@@ -165,8 +164,6 @@ def restore_agent(agent: Any, path: str | os.PathLike[str]) -> None:
         explorer.noise.load_state_dict(data["noise"])
         explorer.load_state_dict(data.get("driver"))
         agent.writer.pending.load_state_dict(data.get("n_step", {}))
-        if agent.writer.returns is not None:
-            agent.writer.returns.load_state_dict(data["episode_returns"])
         held = data.get("warmup_action")
         explorer.held_action = None if held is None else held.numpy().astype(np.float64)
         if data["buffer"] is not None:

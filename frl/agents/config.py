@@ -70,7 +70,6 @@ RANGES: dict[str, tuple[Callable[[float], bool], Callable[[float], bool], str]] 
     "warmup_hold_steps": (lambda v: v >= 1, _ANY, "be >= 1 and finite"),
     "guide_weight": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
     "guide_drives": (lambda v: v >= 0, lambda v: v <= 1, "lie in [0, 1]"),
-    "self_imitation": (lambda v: v >= 0, _ANY, "be >= 0 and finite"),
     "critic.cvar_alpha": (lambda v: v > 0, lambda v: v <= 1, "lie in (0, 1]"),
 }
 """Numeric fields (a group's as ``group.field``): (lower check, upper check, what the
@@ -300,15 +299,6 @@ class DDPGConfig:
     step. Its transitions go into the replay buffer as the agent's own do; they do not
     count for the collision budget, which follows the agent's own driving. 0: the agent
     always drives."""
-    self_imitation: float = 0.0
-    """Weight of self-imitation (Oh et al. 2018, "Self-Imitation Learning") in the actor's
-    loss: the squared distance between the actor's action and the action the agent took
-    itself, on the sampled states whose episode's realised discounted return beat the
-    reward critic's value of the actor's own action there (under a collision budget too:
-    the budget prices the objective, not this comparison). The agent learns only from its
-    own driving, pulled towards what went better than its critic expected. A return is
-    known once its episode has ended (arrived or collided); states of episodes cut off by
-    a time limit are never imitated. 0: no term."""
     sparse: SparseConfig = field(default_factory=SparseConfig)
     """Whether the networks and the buffer read the observation's non-zeros alone."""
     encoder: str = "flat"
@@ -376,11 +366,6 @@ class DDPGConfig:
                 self.guide != "none" or getattr(self, name) == 0,
                 f"{name} learns from a teacher: set guide to one of " + ", ".join(GUIDES[1:]),
             )
-        _require(
-            self.self_imitation == 0 or self.critic.kind == "expected",
-            "self_imitation compares realised returns with the critic's expected return: "
-            "it needs critic.kind=expected",
-        )
         self._check_cost_options()
 
     def _check_cost_options(self) -> None:
@@ -410,12 +395,6 @@ class DDPGConfig:
     def costed(self) -> bool:
         """Whether the agent learns a cost critic under a collision budget."""
         return self.collision_budget is not None
-
-    @property
-    def tracks_returns(self) -> bool:
-        """Whether the buffer keeps each transition's realised return to its episode's end
-        (``self_imitation``)."""
-        return self.self_imitation > 0
 
     @property
     def guided(self) -> bool:

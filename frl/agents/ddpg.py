@@ -34,7 +34,7 @@ from frl.agents.functional import (
     lower_tail_mean,
     soft_update,
 )
-from frl.agents.guide import imitation_loss, self_imitation_loss
+from frl.agents.guide import imitation_loss
 from frl.agents.learn import LearnCallback, learn, read_losses
 from frl.agents.networks import build_actor_critic, make_adam
 from frl.agents.observations import ObservationLayout
@@ -130,7 +130,6 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             cfg.buffer_size, self.obs_shape, self.action_dim, rng(buffer_seq), sparse=compact,
             sparse_width=cfg.sparse.capacity, guided=cfg.guided, costed=cfg.costed,
             vehicle_geometry=None if encoder is None else encoder.geometry,
-            tracks_returns=cfg.tracks_returns,
         )  # fmt: skip
         self.teacher = Teacher(cfg.guide, self.layout, self.scale) if cfg.guided else None
         self.writer = TransitionWriter(self.buffer, cfg.n_step, cfg.gamma, self.teacher)
@@ -309,15 +308,13 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             with self._autocast():
                 preactivation = nets.actor.preactivation(batch.obs)
             if self.config.actor_update == "tanh":
-                q_policy, value = self.objective_and_value(batch.obs, torch.tanh(preactivation))
+                q_policy = self.objective(batch.obs, torch.tanh(preactivation))
                 dq_da = None
             else:
                 action = self.bounded_action(preactivation)
-                q_policy, value = self.objective_and_value(batch.obs, action)
+                q_policy = self.objective(batch.obs, action)
                 (dq_da,) = torch.autograd.grad(q_policy.sum(), action)
-            actor_loss, stats = self.actor_losses(
-                batch, preactivation, q_policy, dq_da, value.detach()
-            )
+            actor_loss, stats = self.actor_losses(batch, preactivation, q_policy, dq_da)
             self._descend(self.actor_optimizer, actor_loss)
         finally:
             for net in frozen:
@@ -331,14 +328,12 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         return preactivation.detach().clamp(-1.0, 1.0).requires_grad_(True)
 
     def actor_losses(
-        self, batch: Batch, preactivation: Tensor, q_policy: Tensor, dq_da: Tensor | None,
-        value: Tensor | None = None,
-    ) -> tuple[Tensor, dict[str, Tensor]]:  # fmt: skip
+        self, batch: Batch, preactivation: Tensor, q_policy: Tensor, dq_da: Tensor | None
+    ) -> tuple[Tensor, dict[str, Tensor]]:
         """The actor's loss from its unbounded action ``preactivation`` and the objective
         ``q_policy`` at the action taken: ``tanh`` (``dq_da`` None), -objective(s,
         tanh(p)); else inverting gradients with dQ/da at the clipped action; plus a
-        teacher's pull and self-imitation, which compares realised returns with
-        ``value``, the reward critic's there (detached; None: ``q_policy``)."""
+        teacher's pull."""
         cfg = self.config
         if dq_da is None:
             actor_loss = -q_policy.mean()
@@ -349,14 +344,6 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             imitation = cfg.guide_weight * imitation_loss(preactivation, batch.guide_actions)
             actor_loss = actor_loss + imitation
             stats["imitation_loss"] = imitation.detach()
-        if cfg.self_imitation > 0 and batch.returns_to_go is not None:
-            expected = q_policy.detach() if value is None else value
-            imitation, share = self_imitation_loss(
-                preactivation, batch.actions, batch.returns_to_go, expected
-            )
-            actor_loss = actor_loss + cfg.self_imitation * imitation
-            stats["self_imitation_loss"] = imitation.detach()
-            stats["self_imitation_share"] = share
         return actor_loss, stats
 
     def objective(
@@ -365,12 +352,6 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         """What the actor climbs at ``action``, per sample: Q_r (the CVaR of the return's
         quantiles below ``cvar_alpha`` = 1), priced by a collision budget's constraint
         (``price``: its multiplier and 1 + multiplier; None: the constraint's own)."""
-        return self.objective_and_value(obs, action, price)[0]
-
-    def objective_and_value(
-        self, obs: Tensor | SparseRows, action: Tensor, price: tuple[Tensor, Tensor] | None = None
-    ) -> tuple[Tensor, Tensor]:
-        """:meth:`objective`, and the reward critic's value before a budget prices it."""
         cfg, nets, constraint = self.config, self.networks, self.constraint
         with self._autocast():
             if constraint is not None and constraint.reads_critic_hidden:
@@ -379,9 +360,9 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
                 value, hidden = nets.critic(obs, action), None
         if cfg.critic.kind == "quantile":
             value = lower_tail_mean(value, cfg.critic.cvar_alpha)
-        if constraint is None:
-            return value, value
-        return constraint.price(value, obs, action, hidden, price), value
+        if constraint is not None:
+            value = constraint.price(value, obs, action, hidden, price)
+        return value
 
     def _tensors_read(self) -> list[Tensor]:
         """What an update reads besides its batch and keeps from one update to the next:

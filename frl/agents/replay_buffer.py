@@ -42,9 +42,6 @@ class Batch(NamedTuple):
     """A teacher's actions at ``obs`` (normalised), where the buffer stores them."""
     costs: Tensor | None = None
     """The discounted cost sums (collisions), where the buffer stores them."""
-    returns_to_go: Tensor | None = None
-    """The realised discounted return from ``obs`` to its episode's end, NaN where not
-    known, where the buffer keeps them (self-imitation)."""
 
     def to(self, device: Any) -> Batch:
         """The same batch on ``device`` (copies from the host do not wait)."""
@@ -175,8 +172,6 @@ class ReplayBuffer:
         vehicle_geometry: a vehicles encoder's ``geometry``
             (:class:`frl.agents.vehicle_encoder.VehicleSetEncoder`): compact batches come
             with their vehicles, found once per batch in NumPy.
-        tracks_returns: keep each transition's realised return to its episode's end, NaN
-            until :meth:`set_returns` fills it.
     """
 
     def __init__(
@@ -190,7 +185,6 @@ class ReplayBuffer:
         guided: bool = False,
         costed: bool = False,
         vehicle_geometry: tuple[int, int, int] | None = None,
-        tracks_returns: bool = False,
     ) -> None:
         if capacity <= 0:
             raise ValueError(f"capacity must be positive, got {capacity}")
@@ -217,11 +211,6 @@ class ReplayBuffer:
         )
         self.costed = costed
         self.costs = committed_when_written((capacity if costed else 0,), np.float32)
-        self.tracks_returns = tracks_returns
-        # Each slot turns NaN when written (add) and known when its episode ends.
-        self.returns_to_go = committed_when_written(
-            (capacity if tracks_returns else 0,), np.float32
-        )
         self.pos = 0
         self.size = 0
 
@@ -233,8 +222,7 @@ class ReplayBuffer:
         """Bytes held by the storage arrays (allocated for the full capacity)."""
         obs_bytes = self._obs.nbytes + self._next_obs.nbytes
         scalars = self.actions.nbytes + self.rewards.nbytes + self.terminated.nbytes
-        labels = self.guide_actions.nbytes + self.costs.nbytes
-        return obs_bytes + scalars + labels + self.returns_to_go.nbytes
+        return obs_bytes + scalars + self.guide_actions.nbytes + self.costs.nbytes
 
     def add(
         self,
@@ -275,17 +263,8 @@ class ReplayBuffer:
             self.guide_actions[slot] = np.asarray(guide_action, np.float32).reshape(-1)
         if self.costed:
             self.costs[slot] = cost
-        if self.tracks_returns:  # unknown until the episode ends
-            self.returns_to_go[slot] = np.nan
         self.pos = (slot + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
-
-    def set_returns(self, slots: np.ndarray, returns: np.ndarray) -> None:
-        """The realised returns to their episode's end of the transitions at ``slots``,
-        once their episode has ended."""
-        if not self.tracks_returns:
-            raise ValueError("this buffer keeps no returns to go (tracks_returns=False)")
-        self.returns_to_go[slots] = returns
 
     def _observations(
         self, store: Any, slots: np.ndarray, as_sparse: bool, transposed: bool = False
@@ -326,7 +305,6 @@ class ReplayBuffer:
             torch.from_numpy(self.horizons[slots]),
             torch.from_numpy(self.guide_actions[slots]) if self.guided else None,
             torch.from_numpy(self.costs[slots]) if self.costed else None,
-            torch.from_numpy(self.returns_to_go[slots]) if self.tracks_returns else None,
         )
         return batch if torch.device(device).type == "cpu" else batch.to(device)
 
@@ -336,7 +314,6 @@ class ReplayBuffer:
             ("actions", "rewards", "terminated", "horizons")
             + (("guide_actions",) if self.guided else ())
             + (("costs",) if self.costed else ())
-            + (("returns_to_go",) if self.tracks_returns else ())
         )
 
     def state_dict(self) -> dict[str, Any]:

@@ -271,10 +271,8 @@ class StackedUpdate:
 
             def tanh_losses(batch: Batch, *prices: Tensor) -> Any:
                 preactivation = preactivation_of(batch)
-                q_policy, value = template.objective_and_value(
-                    batch.obs, torch.tanh(preactivation), _pair(prices)
-                )
-                return template.actor_losses(batch, preactivation, q_policy, None, value.detach())
+                q_policy = template.objective(batch.obs, torch.tanh(preactivation), _pair(prices))
+                return template.actor_losses(batch, preactivation, q_policy, None)
 
             def tanh_phase(
                 p: dict[str, Tensor], parts: list[Tensor | None], *prices: Tensor
@@ -288,25 +286,24 @@ class StackedUpdate:
         def preactivation_phase(p: dict[str, Tensor], parts: list[Tensor | None]) -> Tensor:
             return functional_call(calls, p, (preactivation_of, batch_of(parts)))
 
-        def objective_of(batch: Batch, action: Tensor, *prices: Tensor) -> Any:
-            return template.objective_and_value(batch.obs, action, _pair(prices))
+        def objective_of(batch: Batch, action: Tensor, *prices: Tensor) -> Tensor:
+            return template.objective(batch.obs, action, _pair(prices))
 
         def objective_phase(
             p: dict[str, Tensor], parts: list[Tensor | None], action: Tensor, *prices: Tensor
-        ) -> Any:
+        ) -> Tensor:
             return functional_call(calls, p, (objective_of, batch_of(parts), action, *prices))
 
         def loss_phase(
-            parts: list[Tensor | None], preactivation: Tensor, q_policy: Tensor, dq_da: Tensor,
-            value: Tensor,
-        ) -> Any:  # fmt: skip
-            return template.actor_losses(batch_of(parts), preactivation, q_policy, dq_da, value)
+            parts: list[Tensor | None], preactivation: Tensor, q_policy: Tensor, dq_da: Tensor
+        ) -> Any:
+            return template.actor_losses(batch_of(parts), preactivation, q_policy, dq_da)
 
         preactivation = vmap(preactivation_phase)(actor_params, tensors)
         action = template.bounded_action(preactivation)
-        q_policy, value = vmap(objective_phase)(frozen, tensors, action, *price)
+        q_policy = vmap(objective_phase)(frozen, tensors, action, *price)
         (dq_da,) = torch.autograd.grad(q_policy.sum(), action)
-        loss, stats = vmap(loss_phase)(tensors, preactivation, q_policy, dq_da, value.detach())
+        loss, stats = vmap(loss_phase)(tensors, preactivation, q_policy, dq_da)
         self._descend("actor", loss)
         return stats
 

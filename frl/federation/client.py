@@ -39,13 +39,11 @@ from frl.policies import install_guide
 
 LOSS_NAMES: tuple[str, ...] = (
     "critic_loss", "actor_loss", "q_mean", "td_error", "imitation_loss",
-    "self_imitation_loss", "self_imitation_share",
     "cost_critic_loss", "cost_q_mean", "lagrange_multiplier", "collision_rate",
 )  # fmt: skip
 """Per-step learning statistics a client reports (NaN on steps without an update);
 ``td_error`` is the batch's mean |Q(s, a) - (r + gamma Q'(s', mu'(s')))|; a guided agent's
-``imitation_loss`` (weighted); self-imitation's (unweighted) and the share of each batch
-it imitated; under a collision budget the cost critic's loss and mean
+``imitation_loss`` (weighted); under a collision budget the cost critic's loss and mean
 Q_c, the multiplier lambda and the training collision rate it follows."""
 
 ACTION_SERIES: tuple[str, ...] = ("executed", "policy")
