@@ -25,7 +25,7 @@ _BRANCHES_COMMIT = "5f21138"
 _DOUBT = '"A price on doubt: bootstrapped critic heads"'
 _DOUBT_COMMIT = "c23eea2"
 _SELF_IMITATION = '"Self-imitation: its own driving that beat its critic"'
-_SELF_IMITATION_COMMIT = "0000000"
+_SELF_IMITATION_COMMIT = "bc5ce4d"
 _BRANCHES_OFF = {"probability": 0.0, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10}
 """The ``agent.branches`` group as every config and checkpoint wrote it with branches off."""
 
