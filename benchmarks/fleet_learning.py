@@ -14,8 +14,9 @@ vehicle step, ``benchmarks/collection.py``) come on top, spread over the cores.
 
 On a GPU the agents' updates are captured as CUDA graphs (``DDPGConfig.cuda_graph``);
 ``--eager-too`` times the same fleet with every update eager beside them. ``--stacked``
-times it a third way: the vehicles step in lockstep and learn in one stacked update
-(:mod:`frl.agents.stacked`, ``federation.stack_updates``).
+times it another way: the vehicles step in lockstep and learn in one stacked update
+(:mod:`frl.agents.stacked`, ``federation.stack_updates``), captured as one graph on a GPU
+(and, with ``--eager-too``, eager beside it).
 
 Prints per fleet and way: seconds per round, milliseconds per vehicle step, and the
 device's peak memory (a GPU's ``max_memory_allocated``).
@@ -131,23 +132,28 @@ def main() -> None:
         parser.error(f"--scenes {args.scenes}: no such file")
     threads = configure_cpu_training(args.threads)
     scenes = RecordedScenes.record() if args.scenes is None else RecordedScenes.load(args.scenes)
-    ways = ["captured", "eager"] if device.type == "cuda" and args.eager_too else ["captured"]
-    ways += ["stacked"] if args.stacked else []
+    on_gpu = device.type == "cuda"
+    ways = ["captured", "eager"] if on_gpu and args.eager_too else ["captured"]
+    if args.stacked:
+        ways += ["stacked", "stacked eager"] if on_gpu and args.eager_too else ["stacked"]
     print(f"torch {torch.__version__}, device {device}, {threads} threads; "
           f"a round of {args.interval} steps per vehicle, an update every 8")  # fmt: skip
     print("| vehicles | updates | s per round | ms per vehicle step | peak device memory |")
     print("|---|---|---|---|---|")
     for count in fleets:
         for way in ways:
-            config = fleet_config(cuda_graph=way == "captured")
+            config = fleet_config(cuda_graph=way in ("captured", "stacked"))
             vehicles = [Vehicle(i, config, scenes, str(device)) for i in range(count)]
-            stacked = StackedUpdate([v.agent for v in vehicles]) if way == "stacked" else None
+            agents = [v.agent for v in vehicles]
+            stacked = StackedUpdate(agents) if way.startswith("stacked") else None
             time_round(vehicles, LEARNING_STARTS + 40, device, stacked)  # fill, warm up
             if device.type == "cuda":
                 torch.cuda.reset_peak_memory_stats(device)
             seconds = time_round(vehicles, args.interval, device, stacked)
             if way == "captured":
-                way = "CUDA graph" if device.type == "cuda" else "one by one"
+                way = "CUDA graph" if on_gpu else "one by one"
+            elif way == "stacked" and on_gpu:
+                way = "stacked, one CUDA graph"
             memory = (
                 f"{torch.cuda.max_memory_allocated(device) / 2**30:.2f} GiB"
                 if device.type == "cuda"
@@ -155,7 +161,7 @@ def main() -> None:
             )
             per_step = 1e3 * seconds / (count * args.interval)
             print(f"| {count} | {way} | {seconds:.1f} | {per_step:.2f} | {memory} |", flush=True)
-            del vehicles, stacked
+            del vehicles, agents, stacked
             if device.type == "cuda":
                 torch.cuda.empty_cache()
 

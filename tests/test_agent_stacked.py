@@ -1,6 +1,8 @@
 """Many agents in one update (frl.agents.stacked): each learns as it would alone, to the
 rounding of a batched matrix product; its state, checkpoints and federated loads stay its
-own; a stacked run resumes exactly; what cannot be stacked is refused in one line."""
+own; a stacked run resumes exactly; what cannot be stacked is refused in one line. The
+stacked update through a CUDA graph's data path trains exactly as the eager one (on the
+CPU with the capture left out; the tests marked ``cuda`` capture for real)."""
 
 from __future__ import annotations
 
@@ -13,13 +15,15 @@ import torch
 from gymnasium import spaces
 
 from frl.agents import DDPG, DDPGConfig
-from frl.agents.stacked import StackedUpdate, stacking_refusal
+from frl.agents.stacked import STACKED_PACKING, StackedUpdate, stacking_refusal
+from frl.agents.update_graph import GraphedUpdate
 
 GRID = spaces.Box(-2.0, 2.0, (26, 18, 3), dtype=np.float32)
 ACCEL = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
 SEEDS = (4, 5, 6)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
+cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 
 
 def small_config(**options: object) -> DDPGConfig:
@@ -46,8 +50,8 @@ def observation(rng: np.random.Generator) -> np.ndarray:
     return grid
 
 
-def agents_of(config: DDPGConfig) -> list[DDPG]:
-    agents = [DDPG(GRID, ACCEL, config, seed=seed) for seed in SEEDS]
+def agents_of(config: DDPGConfig, device: str = "cpu") -> list[DDPG]:
+    agents = [DDPG(GRID, ACCEL, config, seed=seed, device=device) for seed in SEEDS]
     for agent in agents:
         agent.set_guide(lambda obs: np.full(1, 0.25, np.float32))
     return agents
@@ -236,3 +240,81 @@ def test_agents_out_of_lockstep_stop_the_stacked_update() -> None:
     agents[0].observe(observation(rng), np.zeros(1, np.float32), 0.0, observation(rng), False)
     with pytest.raises(RuntimeError, match="out of lockstep"):
         stacked.update_unread()
+
+
+def static_path(stacked: StackedUpdate) -> StackedUpdate:
+    """``stacked`` with the graph's data path on the CPU, the capture left out."""
+    stacked.update_graph = GraphedUpdate(
+        stacked._step, stacked.template.device, stacked._tensors_read, warmup=1,
+        replay_as_graph=False, packing=STACKED_PACKING,
+    )  # fmt: skip
+    return stacked
+
+
+def assert_same_runs(
+    agents_a: list[DDPG], agents_b: list[DDPG], losses_a: list[list[dict]],
+    losses_b: list[list[dict]],
+) -> None:  # fmt: skip
+    assert losses_a == losses_b
+    for a, b in zip(agents_a, agents_b, strict=True):
+        state_b = states(b)
+        for key, value in states(a).items():
+            gap = (value - state_b[key]).abs().max().item()
+            assert torch.equal(value, state_b[key]), f"{key} differs by up to {gap:.3g}"
+
+
+def restore_in_place(agents: list[DDPG], directory: Path) -> None:
+    """Save and restore every agent: new optimizer moments, so the agents are stacked
+    afresh and a graph captured on the old ones must go."""
+    for k, agent in enumerate(agents):
+        agent.save(directory / f"agent{k}.pt", include_buffer=True)
+        agent.restore(directory / f"agent{k}.pt")
+
+
+@pytest.mark.parametrize(
+    "options", [{}, {"guide": "gap_acceptance", "guide_weight": 0.5, "n_step": 3}]
+)
+def test_the_stacked_update_through_a_graph_s_static_batch_trains_as_the_eager_one(
+    options: dict, tmp_path: Path
+) -> None:
+    eager_agents, graph_agents = (
+        agents_of(small_config(**options)),
+        agents_of(small_config(**options)),
+    )
+    eager, graphed = StackedUpdate(eager_agents), static_path(StackedUpdate(graph_agents))
+    assert StackedUpdate(agents_of(small_config())).update_graph is None  # a CPU runs eagerly
+    losses = [drive(eager_agents, 50, stacked_updates(eager)),
+              drive(graph_agents, 50, stacked_updates(graphed))]  # fmt: skip
+    assert graphed.update_graph is not None and graphed.update_graph.captures >= 1
+    assert_same_runs(eager_agents, graph_agents, *losses)
+    restore_in_place(eager_agents, tmp_path / "eager")
+    restore_in_place(graph_agents, tmp_path / "graphed")
+    captures = graphed.update_graph.captures
+    losses = [drive(eager_agents, 20, stacked_updates(eager), start=50),
+              drive(graph_agents, 20, stacked_updates(graphed), start=50)]  # fmt: skip
+    assert graphed.stackings == 2 and graphed.update_graph.captures > captures
+    assert_same_runs(eager_agents, graph_agents, *losses)
+    graphed.release()
+    assert not graphed.update_graph.captured
+
+
+@cuda
+@pytest.mark.parametrize("precision", ["float32", "bf16"])
+def test_a_captured_stacked_update_trains_as_the_eager_one_on_a_gpu(
+    precision: str, tmp_path: Path
+) -> None:
+    eager_agents = agents_of(small_config(precision=precision, cuda_graph=False), "cuda")
+    graph_agents = agents_of(small_config(precision=precision), "cuda")
+    eager, graphed = StackedUpdate(eager_agents), StackedUpdate(graph_agents)
+    assert eager.update_graph is None and graphed.update_graph is not None
+    losses = [drive(eager_agents, 60, stacked_updates(eager)),
+              drive(graph_agents, 60, stacked_updates(graphed))]  # fmt: skip
+    assert graphed.update_graph.captures >= 1
+    assert_same_runs(eager_agents, graph_agents, *losses)
+    restore_in_place(eager_agents, tmp_path / "eager")
+    restore_in_place(graph_agents, tmp_path / "graphed")
+    captures = graphed.update_graph.captures
+    losses = [drive(eager_agents, 30, stacked_updates(eager), start=60),
+              drive(graph_agents, 30, stacked_updates(graphed), start=60)]  # fmt: skip
+    assert graphed.update_graph.captures > captures
+    assert_same_runs(eager_agents, graph_agents, *losses)

@@ -25,6 +25,12 @@ Anything that replaces an agent's tensors rather than writing into them (a check
 optimizer state) changes the *fingerprint*, the addresses of the tensors the agents hold,
 checked before each update: the agents are then stacked afresh from what they hold.
 
+On a GPU, where the agents would capture their own updates (``DDPGConfig.cuda_graph``),
+the stacked update is captured as one CUDA graph per batch layout and replayed
+(:mod:`frl.agents.update_graph`): the vehicles' batches are stacked on the host and
+copied into the graph's static tensors, and the kernels and numbers are the eager
+stacked update's.
+
 On a CPU one vehicle's products already fill the cores, and the stacked update is no
 faster (docs/benchmarks.md, "One update for a process's vehicles"); it is for a GPU.
 """
@@ -32,8 +38,8 @@ faster (docs/benchmarks.md, "One update for a process's vehicles"); it is for a 
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Iterator, Sequence
+from typing import Any, NamedTuple
 
 import torch
 from torch import Tensor, nn
@@ -46,9 +52,39 @@ from frl.agents.grid_vehicles import GridVehicles
 from frl.agents.networks import TARGET_NAMES, make_adam
 from frl.agents.replay_buffer import Batch
 from frl.agents.sparse_linear import SparseRows
-from frl.agents.update_graph import batch_tensors, keeps_one_layout, rebuild_batch
+from frl.agents.update_graph import (
+    GraphedUpdate,
+    Packing,
+    batch_tensors,
+    keeps_one_layout,
+    rebuild_batch,
+)
 
 Losses = dict[str, Tensor | float]
+
+
+class StackedBatch(NamedTuple):
+    """Every vehicle's batch: each of a batch's tensors stacked, one row per vehicle
+    (None where a batch leaves a field empty), and one vehicle's batch, whose layout the
+    stacked tensors have row by row."""
+
+    tensors: list[Tensor | None]
+    layout: Batch
+
+
+def _rebuilt(template: StackedBatch, tensors: Iterator[Tensor | None]) -> StackedBatch:
+    return StackedBatch([next(tensors) for _ in template.tensors], template.layout)
+
+
+def _moved(batch: StackedBatch, device: torch.device) -> StackedBatch:
+    return StackedBatch(
+        [None if t is None else t.to(device, non_blocking=True) for t in batch.tensors],
+        batch.layout,
+    )
+
+
+STACKED_PACKING = Packing(lambda batch: list(batch.tensors), _rebuilt, _moved)
+"""How a graph copies a :class:`StackedBatch` in."""
 
 
 def stacking_refusal(agents: Sequence[DDPG]) -> str | None:
@@ -152,6 +188,14 @@ class StackedUpdate:
         self.fingerprint: tuple[int, ...] = ()
         self.stackings = 0
         """Times the agents were stacked (the first update, and after each replacement)."""
+        device = template.device
+        self.update_graph = (
+            GraphedUpdate(self._step, device, self._tensors_read, packing=STACKED_PACKING)
+            if template.config.cuda_graph and device.type == "cuda"
+            else None
+        )
+        """The stacked update replayed as a CUDA graph; None where it runs eagerly (a CPU,
+        ``cuda_graph=False``)."""
         for agent in self.agents:
             agent.stacked_in = self
 
@@ -177,8 +221,11 @@ class StackedUpdate:
         if fingerprint != self.fingerprint:
             self._stack()
             self.fingerprint = self._fingerprint()
-        tensors, template_batch = self._batch()
-        stats = self._train_step(tensors, template_batch)
+        batch = self._batch()
+        if self.update_graph is not None:  # it copies the host batch to its static one
+            stats = self.update_graph(batch)
+        else:
+            stats = self._step(_moved(batch, self.template.device))
         losses: list[Losses] = []
         for k, agent in enumerate(self.agents):
             own: Losses = {name: value[k] for name, value in stats.items()}
@@ -188,9 +235,9 @@ class StackedUpdate:
             losses.append(own)
         return losses
 
-    def _batch(self) -> tuple[list[Tensor | None], Batch]:
+    def _batch(self) -> StackedBatch:
         """Each agent's own sample, its vehicles padded to the most slots among them, the
-        tensors stacked (one row per agent) on the device; and a batch of the layout."""
+        tensors stacked (one row per agent) on the host."""
         cfg = self.template.config
         batches = []
         for agent in self.agents:
@@ -200,12 +247,29 @@ class StackedUpdate:
         batches = [_padded(b, most) for b in batches]
         columns = [batch_tensors(b) for b in batches]
         assert all(c is not None for c in columns), "stacked agents keep one layout"
-        device = self.template.device
         tensors = [
-            None if parts[0] is None else torch.stack(parts).to(device, non_blocking=True)
+            None if parts[0] is None else torch.stack(parts)
             for parts in zip(*columns, strict=True)  # type: ignore[misc]
         ]
-        return tensors, batches[0]
+        return StackedBatch(tensors, batches[0])
+
+    def _step(self, batch: StackedBatch) -> dict[str, Tensor]:
+        """The stacked update on a batch on the device: each loss with a row per agent."""
+        return self._train_step(batch.tensors, batch.layout)
+
+    def _tensors_read(self) -> list[Tensor]:
+        """What the stacked update reads besides its batch and keeps from one update to
+        the next: the stacked parameters and moments, the first agent's buffers, each
+        agent's multiplier. A captured update replays on these very tensors."""
+        tensors = [*self.stacked.values(), *self.template.networks.buffers()]
+        for optimizer in self.optimizers.values():
+            for state in optimizer.state.values():
+                tensors += [value for value in state.values() if isinstance(value, Tensor)]
+        for agent in self.agents:
+            if agent.constraint is not None:
+                constraint = agent.constraint
+                tensors += [constraint.multiplier_now, constraint.price_denominator]
+        return tensors
 
     def _train_step(self, tensors: list[Tensor | None], layout: Batch) -> dict[str, Tensor]:
         """:meth:`frl.agents.DDPG._train_step` for every agent at once."""
@@ -409,6 +473,8 @@ class StackedUpdate:
                     module._parameters[leaf] = param
                 agent.stacked_in = None
         self.stacked, self.optimizers, self.fingerprint = {}, {}, ()
+        if self.update_graph is not None:
+            self.update_graph.drop()
 
 
 def _update_step(agent: DDPG) -> bool:

@@ -27,12 +27,17 @@ numbers, so the graph changes the speed of a run and not its arithmetic.
 
 Batches whose shapes change from one to the next (the flat encoder's sparse rows, whose
 non-zeros vary in number) cannot be captured; they run eagerly.
+
+What an update reads is a :class:`Packing`'s business: a sampled :class:`Batch` for one
+agent (:data:`BATCH_PACKING`), or every vehicle's batch stacked for the update of many
+(:mod:`frl.agents.stacked`).
 """
 
 from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -43,7 +48,7 @@ from frl.agents.grid_vehicles import GridVehicles
 from frl.agents.replay_buffer import Batch
 from frl.agents.sparse_linear import SparseRows
 
-UpdateStep = Callable[[Batch], dict[str, Tensor]]
+UpdateStep = Callable[[Any], dict[str, Tensor]]
 """One update on a batch on the device: its losses as tensors."""
 Layout = tuple[Any, ...]
 """What a graph is captured for: the shapes and dtypes of a batch's tensors."""
@@ -76,12 +81,17 @@ def batch_tensors(batch: Batch) -> list[Tensor | None] | None:
     return tensors
 
 
-def batch_layout(batch: Batch) -> Layout | None:
-    """The layout a graph for ``batch`` is captured for, or None if it cannot be."""
-    tensors = batch_tensors(batch)
+def layout_of(tensors: list[Tensor | None] | None) -> Layout | None:
+    """The layout a graph for a batch of ``tensors`` is captured for, or None if it
+    cannot be."""
     if tensors is None:
         return None
     return tuple(None if t is None else (tuple(t.shape), t.dtype) for t in tensors)
+
+
+def batch_layout(batch: Batch) -> Layout | None:
+    """The layout a graph for ``batch`` is captured for, or None if it cannot be."""
+    return layout_of(batch_tensors(batch))
 
 
 def rebuild_batch(template: Batch, tensors: Iterator[Tensor | None]) -> Batch:
@@ -110,6 +120,26 @@ def rebuild_batch(template: Batch, tensors: Iterator[Tensor | None]) -> Batch:
     return Batch(*fields)
 
 
+@dataclass(frozen=True)
+class Packing:
+    """How an update's input is taken apart into the tensors a graph copies, and put back.
+
+    Attributes:
+        tensors: the input's tensors in a fixed order (None in a place an input leaves
+            empty), or None where the input cannot be captured.
+        rebuild: an input shaped as the first argument, holding the given tensors.
+        to: the input moved to a device (the eager update's way in).
+    """
+
+    tensors: Callable[[Any], list[Tensor | None] | None]
+    rebuild: Callable[[Any, Iterator[Tensor | None]], Any]
+    to: Callable[[Any, torch.device], Any]
+
+
+BATCH_PACKING = Packing(batch_tensors, rebuild_batch, lambda batch, device: batch.to(device))
+"""One agent's sampled :class:`Batch`."""
+
+
 class CapturedStep:
     """One update captured for one batch layout: its static batch, and a replay.
 
@@ -120,16 +150,18 @@ class CapturedStep:
         replay_as_graph: capture with ``torch.cuda.graph`` (False: run ``step`` on the
             static batch at each replay; the same data path without the graph, for tests
             on a machine without CUDA).
+        packing: what a batch is made of (:data:`BATCH_PACKING`: one agent's).
     """
 
     def __init__(
-        self, step: UpdateStep, batch: Batch, device: torch.device, replay_as_graph: bool = True
-    ) -> None:
-        tensors = batch_tensors(batch)
+        self, step: UpdateStep, batch: Any, device: torch.device, replay_as_graph: bool = True,
+        packing: Packing = BATCH_PACKING,
+    ) -> None:  # fmt: skip
+        tensors = packing.tensors(batch)
         assert tensors is not None, "a batch without a fixed layout cannot be captured"
-        self.step = step
+        self.step, self.packing = step, packing
         self.static = [None if t is None else torch.empty_like(t, device=device) for t in tensors]
-        self.static_batch = rebuild_batch(batch, iter(self.static))
+        self.static_batch = packing.rebuild(batch, iter(self.static))
         pinned = device.type == "cuda"
         self.staging = [
             [None if t is None else torch.empty_like(t, pin_memory=pinned) for t in tensors]
@@ -152,9 +184,9 @@ class CapturedStep:
         self.names = list(losses)
         return torch.stack([loss.float() for loss in losses.values()])
 
-    def load(self, batch: Batch) -> None:
+    def load(self, batch: Any) -> None:
         """Copy ``batch`` into the static tensors (through pinned memory on a GPU)."""
-        tensors = batch_tensors(batch)
+        tensors = self.packing.tensors(batch)
         assert tensors is not None
         staging, copied = self.staging[self.turn], self.copied[self.turn]
         if copied is not None:
@@ -168,7 +200,7 @@ class CapturedStep:
             copied.record()
         self.turn ^= 1
 
-    def replay(self, batch: Batch) -> dict[str, Tensor]:
+    def replay(self, batch: Any) -> dict[str, Tensor]:
         """The update on ``batch``: its losses, each a view of one fresh tensor."""
         self.load(batch)
         if self.graph is None:
@@ -191,14 +223,17 @@ class GraphedUpdate:
             fingerprint that a replay must match.
         warmup: eager updates of a layout before it is captured.
         replay_as_graph: False runs the same data path without capturing (tests on CPU).
+        packing: what a batch is made of (:data:`BATCH_PACKING`: one agent's).
     """
 
     def __init__(
         self, step: UpdateStep, device: torch.device, tensors_read: Callable[[], list[Tensor]],
         warmup: int = WARMUP_UPDATES, replay_as_graph: bool = True,
+        packing: Packing = BATCH_PACKING,
     ) -> None:  # fmt: skip
         self.step, self.device, self.tensors_read = step, torch.device(device), tensors_read
         self.warmup, self.replay_as_graph = int(warmup), replay_as_graph
+        self.packing = packing
         self.captured: dict[Layout, CapturedStep] = {}
         self.eager_updates: Counter[Layout] = Counter()
         """Per layout: eager updates since the graphs were last dropped."""
@@ -207,11 +242,11 @@ class GraphedUpdate:
         """Graphs captured so far (a fingerprint change or a new layout adds one)."""
         self._side_stream: torch.cuda.Stream | None = None
 
-    def __call__(self, batch: Batch) -> dict[str, Tensor]:
+    def __call__(self, batch: Any) -> dict[str, Tensor]:
         """One update on ``batch`` (on the host): replayed, captured or eager."""
-        layout = batch_layout(batch)
+        layout = layout_of(self.packing.tensors(batch))
         if layout is None:
-            return self.step(batch.to(self.device))
+            return self.step(self.packing.to(batch, self.device))
         fingerprint = tuple(t.data_ptr() for t in self.tensors_read())
         if fingerprint != self.fingerprint:
             self.drop()
@@ -221,7 +256,9 @@ class GraphedUpdate:
             if self.eager_updates[layout] < self.warmup:
                 self.eager_updates[layout] += 1
                 return self.eager(batch)
-            captured = CapturedStep(self.step, batch, self.device, self.replay_as_graph)
+            captured = CapturedStep(
+                self.step, batch, self.device, self.replay_as_graph, self.packing
+            )
             self.captured[layout] = captured
             self.captures += 1
         return captured.replay(batch)
@@ -231,16 +268,17 @@ class GraphedUpdate:
         self.captured.clear()
         self.eager_updates.clear()
 
-    def eager(self, batch: Batch) -> dict[str, Tensor]:
+    def eager(self, batch: Any) -> dict[str, Tensor]:
         """An eager update, on a side stream on a GPU (capture's warm-up)."""
+        to_device = self.packing.to
         if self.device.type != "cuda" or not self.replay_as_graph:
-            return self.step(batch.to(self.device))
+            return self.step(to_device(batch, self.device))
         current = torch.cuda.current_stream(self.device)
         if self._side_stream is None:
             self._side_stream = torch.cuda.Stream(self.device)
         side = self._side_stream
         side.wait_stream(current)
         with torch.cuda.stream(side):
-            losses = self.step(batch.to(self.device))
+            losses = self.step(to_device(batch, self.device))
         current.wait_stream(side)
         return losses
