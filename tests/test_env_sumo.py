@@ -1,5 +1,9 @@
 """IntersectionEnv on real SUMO: API contract, determinism, dynamics and episode ends."""
 
+import multiprocessing
+import threading
+import time
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -7,6 +11,7 @@ from gymnasium.utils.env_checker import check_env
 
 from frl.envs import ENV_ID, IntersectionEnv, RewardConfig, SumoError
 from frl.envs.reward import REWARD_TERMS
+from frl.envs.sumo_backend import one_port_pick_at_a_time
 
 FULL_THROTTLE = np.array([1.0], dtype=np.float32)
 FULL_BRAKE = np.array([-1.0], dtype=np.float32)
@@ -216,3 +221,27 @@ def test_rgb_array_render_shows_agent_red_and_humans_yellow(make_env):
     red = (frame[..., 0] > 200) & (frame[..., 1] < 60) & (frame[..., 2] < 60)
     yellow = (frame[..., 0] > 200) & (frame[..., 1] > 180) & (frame[..., 2] < 60)
     assert red.sum() > 20 and yellow.sum() > 20
+
+
+def _hold_the_port_lock(lock_file, held, release) -> None:
+    with one_port_pick_at_a_time(lock_file):
+        held.set()
+        release.wait(10)
+
+
+def test_one_process_at_a_time_picks_a_port_for_its_sumo(tmp_path):
+    # Two processes picking a free port at once can be handed the same one.
+    context = multiprocessing.get_context("fork")
+    held, release = context.Event(), context.Event()
+    lock_file = tmp_path / "port.lock"
+    holder = context.Process(target=_hold_the_port_lock, args=(lock_file, held, release))
+    holder.start()
+    assert held.wait(30)
+    threading.Timer(0.5, release.set).start()
+    began = time.perf_counter()
+    with one_port_pick_at_a_time(lock_file):
+        waited = time.perf_counter() - began
+    holder.join(10)
+    assert waited >= 0.4
+    with one_port_pick_at_a_time(lock_file):  # released: taken at once
+        pass

@@ -11,8 +11,10 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
+import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, NamedTuple
 
 from frl.envs.config import ScenarioConfig
@@ -102,6 +104,28 @@ def sumo_command(
 
 _TRACI_CONNECT_WAIT_S = 0.02
 _TRACI_CONNECT_TIMEOUT_S = 60.0
+PORT_LOCK_FILE = Path(tempfile.gettempdir()) / "frl-traci-port.lock"
+"""The machine-wide lock held while a free port is picked and SUMO takes it."""
+
+
+@contextlib.contextmanager
+def one_port_pick_at_a_time(lock_file: Path = PORT_LOCK_FILE) -> Iterator[None]:
+    """Hold a lock across processes while a free port is picked and SUMO takes it. A port
+    found free stays free until SUMO binds it, so two processes starting SUMO at once can
+    be handed the same one: one SUMO then quits and its client talks to the other's SUMO
+    (seen with 99 vehicles in 16 processes: "Connection closed by SUMO")."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no lock
+        yield
+        return
+    # Read-only, so that any user may lock a file another user's run created.
+    descriptor = os.open(lock_file, os.O_RDONLY | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(descriptor)  # closing releases the lock
 
 
 def _start_traci(command: list[str], label: str) -> Any:
@@ -112,20 +136,21 @@ def _start_traci(command: list[str], label: str) -> Any:
 
     import traci
 
-    for _ in range(3):  # another process may take the free port first, as traci.start allows
-        port = traci.getFreeSocketPort()
-        process = subprocess.Popen([*command, "--remote-port", str(port)])
-        try:
-            with contextlib.redirect_stdout(io.StringIO()):  # traci prints every retry
-                traci.connect(
-                    port,
-                    numRetries=int(_TRACI_CONNECT_TIMEOUT_S / _TRACI_CONNECT_WAIT_S),
-                    proc=process,
-                    waitBetweenRetries=_TRACI_CONNECT_WAIT_S,
-                    label=label,
-                )
-        except traci.TraCIException:  # SUMO exited: the port was taken
-            continue
+    for _ in range(3):  # another program may take the free port first, as traci.start allows
+        with one_port_pick_at_a_time():
+            port = traci.getFreeSocketPort()
+            process = subprocess.Popen([*command, "--remote-port", str(port)])
+            try:
+                with contextlib.redirect_stdout(io.StringIO()):  # traci prints every retry
+                    traci.connect(
+                        port,
+                        numRetries=int(_TRACI_CONNECT_TIMEOUT_S / _TRACI_CONNECT_WAIT_S),
+                        proc=process,
+                        waitBetweenRetries=_TRACI_CONNECT_WAIT_S,
+                        label=label,
+                    )
+            except traci.TraCIException:  # SUMO exited: the port was taken
+                continue
         return traci.getConnection(label)
     raise SumoError(f"SUMO did not accept a TraCI connection: {' '.join(command)}")
 
