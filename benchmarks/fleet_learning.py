@@ -14,9 +14,9 @@ vehicle step, ``benchmarks/collection.py``) come on top, spread over the cores.
 
 On a GPU the agents' updates are captured as CUDA graphs (``DDPGConfig.cuda_graph``);
 ``--eager-too`` times the same fleet with every update eager beside them. ``--stacked``
-times it another way: the vehicles step in lockstep and learn in one stacked update
-(:mod:`frl.agents.stacked`, ``federation.stack_updates``), captured as one graph on a GPU
-(and, with ``--eager-too``, eager beside it).
+times it another way: the vehicles step in lockstep, act in one batched forward pass and
+learn in one stacked update (:mod:`frl.agents.stacked`, ``federation.stack_updates``),
+captured as one graph on a GPU (and, with ``--eager-too``, eager beside it).
 
 Prints per fleet and way: seconds per round, milliseconds per vehicle step, and the
 device's peak memory (a GPU's ``max_memory_allocated``).
@@ -66,10 +66,11 @@ class Vehicle:
         self.obs = self.scenes.observations[self.position]
         self.pending: list[dict] = []
 
-    def step(self, update: bool = True) -> None:
-        """Act, observe and (``update``) update when due."""
+    def step(self, update: bool = True, policy_action: np.ndarray | None = None) -> None:
+        """Act (on ``policy_action`` where the policy's action is given), observe and
+        (``update``) update when due."""
         scenes, agent = self.scenes, self.agent
-        action = agent.act(self.obs, explore=True)
+        action = agent.act(self.obs, explore=True, policy_action=policy_action)
         self.position = (self.position + 1) % len(scenes.observations)
         next_obs = scenes.observations[self.position]
         terminated = bool(scenes.terminated[self.position])
@@ -89,12 +90,17 @@ def time_round(
     stacked: StackedUpdate | None = None,
 ) -> float:  # fmt: skip
     """Seconds for every vehicle to take ``interval`` steps, in turns (or with
-    ``stacked``, in lockstep, learning in the one stacked update after each step)."""
+    ``stacked``, in lockstep: acting in one batched forward pass, learning in the one
+    stacked update after each step)."""
     began = time.perf_counter()
     for _ in range(interval):
-        for vehicle in vehicles:
-            vehicle.step(update=stacked is None)
-        if stacked is not None:
+        if stacked is None:
+            for vehicle in vehicles:
+                vehicle.step()
+        else:
+            actions = stacked.policy_actions([vehicle.obs for vehicle in vehicles])
+            for vehicle, action in zip(vehicles, actions, strict=True):
+                vehicle.step(update=False, policy_action=action)
             for vehicle, losses in zip(vehicles, stacked.update_unread(), strict=True):
                 if losses:
                     vehicle.pending.append(losses)

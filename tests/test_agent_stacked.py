@@ -318,3 +318,36 @@ def test_a_captured_stacked_update_trains_as_the_eager_one_on_a_gpu(
               drive(graph_agents, 30, stacked_updates(graphed), start=60)]  # fmt: skip
     assert graphed.update_graph.captures > captures
     assert_same_runs(eager_agents, graph_agents, *losses)
+
+
+@pytest.mark.parametrize("options", [{}, {"encoder": "flat", "sparse": {"input": False}}])
+def test_the_stacked_actors_act_in_one_pass_as_each_acts_alone(options: dict) -> None:
+    agents = agents_of(small_config(**options))
+    stacked = StackedUpdate(agents)
+    drive(agents, 40, stacked_updates(stacked))  # the actors learned apart
+    rng = np.random.default_rng(3)
+    observations = [observation(rng) for _ in agents]
+    observations[1] = np.zeros(GRID.shape, np.float32)  # a grid without vehicles
+    together = stacked.policy_actions(observations)
+    assert together.shape == (3, 1) and together.dtype == np.float64
+    for agent, obs, action in zip(agents, observations, together, strict=True):
+        alone = agent._policy_action(agent.layout.flat(obs))
+        assert action == pytest.approx(alone, abs=1e-6)
+    assert len({float(a) for a in together[:, 0]}) == 3
+    with pytest.raises(ValueError, match="one observation per agent"):
+        stacked.policy_actions(observations[:2])
+    with pytest.raises(ValueError, match="shape"):
+        stacked.policy_actions([np.zeros(5, np.float32)] * 3)
+
+
+def test_an_agent_acting_on_a_policy_action_given_acts_as_on_its_own() -> None:
+    config = small_config(learning_starts=0)
+    own, given = (DDPG(GRID, ACCEL, config, seed=2) for _ in range(2))
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        obs = observation(rng)
+        action = given._policy_action(given.layout.flat(obs))
+        assert np.array_equal(own.act(obs), given.act(obs, policy_action=action))
+        assert np.array_equal(own.last_policy_action, given.last_policy_action)
+    with pytest.raises(ValueError, match="policy_action has 2 values"):
+        given.act(obs, policy_action=np.zeros(2))

@@ -11,6 +11,7 @@ from train_helpers import tiny_spec
 
 from frl.agents import is_target_key
 from frl.federation import ProcessClientPool, VehicleClient, fedavg
+from frl.federation.client import LocalUpdate, drive_rounds
 from frl.federation.frames import decode_frame, encode_frame
 from frl.federation.vehicle_host import PARAMETERS_PREFIX
 
@@ -164,3 +165,38 @@ def test_a_fedavg_round_leaves_every_client_with_the_mean_and_only_parameters_le
         if frame is not None
     ]
     assert max(others) < 10_000
+
+
+def _round(name: str, steps: int, seen: list):
+    """A round of ``steps`` steps whose observations are (name, step); it records the
+    policy action and the losses it is given."""
+    for step in range(steps):
+        action = yield (name, step)
+        losses = yield None
+        seen.append((name, step, action, losses))
+    return LocalUpdate(name, steps, steps, np.zeros(steps, np.float32), [])
+
+
+def test_rounds_in_lockstep_act_together_then_learn_together():
+    seen: list = []
+    asked: list = []
+
+    def act(observations):
+        asked.append(list(observations))
+        return [f"action {name} {step}" for name, step in observations]
+
+    results = drive_rounds(
+        [_round("a", 3, seen), _round("b", 3, seen)],
+        update=lambda: [{"loss": 1.0}, {"loss": 2.0}],
+        act=act,
+    )
+    assert [r.client for r in results] == ["a", "b"]
+    assert asked == [[("a", s), ("b", s)] for s in range(3)]  # one call per step, all at once
+    assert seen[:2] == [
+        ("a", 0, "action a 0", {"loss": 1.0}),
+        ("b", 0, "action b 0", {"loss": 2.0}),
+    ]
+    # Without a shared forward pass each vehicle computes its own (None given).
+    seen.clear()
+    drive_rounds([_round("a", 2, seen)], update=lambda: [{}])
+    assert seen == [("a", 0, None, {}), ("a", 1, None, {})]

@@ -11,6 +11,9 @@ training step, measured the same way). What is left is mostly reading the 1.9 MB
 weights, which SUMO and the updates push out of the cache: the 512 x 512 layer takes
 31 us at batch 1 with its weights in cache and 112 us without. :class:`ActionScale`
 maps the actor's [-1, 1] to the action space; :func:`policy_actions` acts on a batch.
+Many agents' actors act on one observation each in one batched pass
+(:meth:`frl.agents.stacked.StackedUpdate.policy_actions`) through
+:func:`stacked_actor_inputs` and :func:`action_on_inputs`.
 
 In float32 the numbers are exactly :meth:`frl.agents.Actor.forward`'s on the same
 observation: the same layers and kernels on tensors of the same shapes. An agent whose
@@ -19,6 +22,7 @@ updates run in bf16 acts in float32 all the same: acting never uses autocast.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -27,7 +31,7 @@ import torch.nn.functional as F
 from gymnasium import spaces
 from torch import Tensor
 
-from frl.agents.grid_vehicles import slots_for
+from frl.agents.grid_vehicles import GridVehicles, slots_for
 from frl.agents.networks import Actor
 from frl.agents.sparse_linear import SparseRows
 from frl.agents.vehicle_encoder import VehicleSetEncoder
@@ -64,6 +68,51 @@ def policy_actions(actor: Actor, flat_batch: np.ndarray, sparse: bool) -> np.nda
     with torch.no_grad():
         actions = actor(SparseRows.from_dense(flat) if sparse else flat)
     return actions.double().cpu().numpy()
+
+
+def stacked_actor_inputs(
+    actor: Actor, flats: Sequence[np.ndarray], device: torch.device
+) -> list[Tensor]:
+    """What each of several actors of ``actor``'s shape reads for its one flat observation,
+    stacked (one row each, a batch of one in every row): for the vehicles encoder, each
+    grid's vehicles found in NumPy (:func:`vehicles_of_one`) in as many slots as the
+    fullest grid needs, and the features after the grid; else the dense row."""
+    encoder = actor.encoder
+    if not isinstance(encoder, VehicleSetEncoder):
+        return [torch.from_numpy(np.stack([flat.reshape(1, -1) for flat in flats])).to(device)]
+    found = [vehicles_of_one(encoder, flat) for flat in flats]
+    slots = max(cell.shape[1] for cell, _, _ in found)
+    cells = np.zeros((len(flats), 1, slots), np.int64)
+    channels = np.zeros((len(flats), 1, slots, encoder.grid_shape[2] - 1), np.float32)
+    present = np.zeros((len(flats), 1, slots), np.float32)
+    for k, (cell, found_channels, found_present) in enumerate(found):
+        width = cell.shape[1]
+        cells[k, :, :width], channels[k, :, :width] = cell, found_channels
+        present[k, :, :width] = found_present
+    arrays = [cells, channels, present]
+    if encoder.extra_features:
+        arrays.append(np.stack([flat[None, encoder.grid_features :] for flat in flats]))
+    return [torch.from_numpy(array).to(device) for array in arrays]
+
+
+def action_on_inputs(actor: Actor, *inputs: Tensor) -> Tensor:
+    """The actor's action ([1, action_dim]) on one row of :func:`stacked_actor_inputs`:
+    what ``torch.func.vmap`` maps over many actors' parameters."""
+    encoder = actor.encoder
+    if not isinstance(encoder, VehicleSetEncoder):
+        return actor(inputs[0])
+    cell, channels, present, *extra = inputs
+    device = cell.device
+    rows = SparseRows(
+        torch.empty(0, dtype=torch.int64, device=device),
+        torch.empty(0, dtype=torch.float32, device=device),
+        torch.zeros(1, dtype=torch.int64, device=device),
+        encoder.grid_features + encoder.extra_features,
+        vehicles=GridVehicles(
+            encoder.geometry, cell, channels, present, extra[0] if extra else None
+        ),
+    )
+    return actor(rows)
 
 
 def _actor_input(
@@ -177,11 +226,16 @@ class Acting:
             raise ValueError(f"expected an observation of shape {self.obs_shape}")
         return actor_action(self.actor, flat, self.sparse)
 
-    def act(self, obs: Any, explore: bool = True) -> np.ndarray:
+    def act(
+        self, obs: Any, explore: bool = True, policy_action: np.ndarray | None = None
+    ) -> np.ndarray:
         """Action for one observation, float32 within the bounds: with ``explore`` the
         explorer's (held uniform warm-up actions, then the policy's plus noise), without
         it the deterministic policy's. In an episode the teacher drives
-        (``DDPGConfig.guide_drives``), exploring takes the teacher's action plus the noise."""
+        (``DDPGConfig.guide_drives``), exploring takes the teacher's action plus the noise.
+        ``policy_action``: the policy's normalised action on ``obs``, already computed
+        (with other agents', :meth:`frl.agents.stacked.StackedUpdate.policy_actions`);
+        None: the actor computes it here."""
         if explore and self.explorer.in_warmup(self.num_env_steps):
             self.last_policy_action = np.full(self.action_dim, np.nan)
             return self.scale.from_unit(self.explorer.warmup_action())
@@ -189,7 +243,16 @@ class Acting:
             self.last_policy_action = np.full(self.action_dim, np.nan)
             flat = np.asarray(self.layout.flat(obs), dtype=np.float32).reshape(-1)
             return self.scale.from_unit(self.explorer.noisy(self.teacher(flat)))
-        action = self.last_policy_action = self._policy_action(self.layout.flat(obs))
+        if policy_action is None:
+            action = self._policy_action(self.layout.flat(obs))
+        else:
+            action = np.asarray(policy_action, dtype=np.float64).reshape(-1)
+            if action.size != self.action_dim:
+                raise ValueError(
+                    f"policy_action has {action.size} values; this agent's actions have "
+                    f"{self.action_dim}"
+                )
+        self.last_policy_action = action
         return self.scale.from_unit(self.explorer.noisy(action) if explore else action)
 
     def predict(

@@ -63,10 +63,15 @@ def training_step(agent: Learner, env: Any, obs: Any) -> Step:
     return acting_step(agent, env, obs)._replace(losses=agent.update_unread())
 
 
-def acting_step(agent: Learner, env: Any, obs: Any) -> Step:
+def acting_step(
+    agent: Learner, env: Any, obs: Any, policy_action: np.ndarray | None = None
+) -> Step:
     """:func:`training_step` without its update (``losses`` empty): for agents whose
-    update is taken elsewhere, with others' (:mod:`frl.agents.stacked`)."""
-    action = agent.act(obs)
+    update is taken elsewhere, with others' (:mod:`frl.agents.stacked`). ``policy_action``:
+    the policy's action on ``obs``, computed with others' (None: the agent computes it)."""
+    action = (
+        agent.act(obs) if policy_action is None else agent.act(obs, policy_action=policy_action)
+    )
     next_obs, reward, terminated, truncated, info = env.step(action)
     cost = float(info.get("cost", 0.0)) if isinstance(info, dict) else 0.0
     agent.observe(obs, action, float(reward), next_obs, terminated, cost=cost)

@@ -41,10 +41,12 @@ from collections import defaultdict
 from collections.abc import Iterator, Sequence
 from typing import Any, NamedTuple
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 from torch.func import functional_call, vmap
 
+from frl.agents.acting import action_on_inputs, stacked_actor_inputs
 from frl.agents.config import EXECUTION_FIELDS, DDPGConfig
 from frl.agents.ddpg import DDPG
 from frl.agents.functional import soft_update
@@ -217,10 +219,7 @@ class StackedUpdate:
             )
         if not all(agent.update_due() for agent in self.agents):
             return [{} for _ in self.agents]
-        fingerprint = self._fingerprint()
-        if fingerprint != self.fingerprint:
-            self._stack()
-            self.fingerprint = self._fingerprint()
+        self._stack_if_replaced()
         batch = self._batch()
         if self.update_graph is not None:  # it copies the host batch to its static one
             stats = self.update_graph(batch)
@@ -234,6 +233,49 @@ class StackedUpdate:
                 own.update(agent.constraint.stats())
             losses.append(own)
         return losses
+
+    # ------------------------------------------------------------------ acting
+    def policy_actions(self, observations: Sequence[Any]) -> np.ndarray:
+        """Every agent's deterministic policy action on its own observation (normalised,
+        float64 ``[agents, action_dim]``), for :meth:`frl.agents.DDPG.act`'s
+        ``policy_action``: the actors in one batched forward pass, in float32 as an agent
+        acts alone (the batched products are not the single ones bit for bit).
+
+        Raises:
+            ValueError: not one observation per agent, or one of another shape.
+        """
+        if len(observations) != len(self.agents):
+            raise ValueError(
+                f"one observation per agent: {len(self.agents)} agents, "
+                f"{len(observations)} observations"
+            )
+        template = self.template
+        flats = [
+            np.asarray(template.layout.flat(obs), np.float32).reshape(-1) for obs in observations
+        ]
+        if any(flat.size != template.obs_dim for flat in flats):
+            raise ValueError(f"expected observations of shape {template.obs_shape}")
+        self._stack_if_replaced()
+        actor = template.networks.actor
+        inputs = stacked_actor_inputs(actor, flats, template.device)
+        params = {
+            f"networks.{name}": tensor.detach()
+            for name, tensor in self.stacked.items()
+            if name.startswith("actor.")
+        }
+
+        def act(p: dict[str, Tensor], *parts: Tensor) -> Tensor:
+            return functional_call(self._calls, p, (action_on_inputs, actor, *parts))
+
+        with torch.no_grad():
+            actions = vmap(act)(params, *inputs)
+        return actions[:, 0].to("cpu", torch.float64).numpy()
+
+    def _stack_if_replaced(self) -> None:
+        """Stack the agents afresh where a tensor they hold was replaced (or never yet)."""
+        if self._fingerprint() != self.fingerprint:
+            self._stack()
+            self.fingerprint = self._fingerprint()
 
     def _batch(self) -> StackedBatch:
         """Each agent's own sample, its vehicles padded to the most slots among them, the

@@ -118,29 +118,40 @@ class LocalUpdate:
 
 
 ProgressCallback = Callable[..., None]
-RoundSteps = Generator[None, Mapping[str, Any], LocalUpdate]
+RoundSteps = Generator[Any, Any, LocalUpdate]
 """A vehicle's round, a step at a time (:meth:`VehicleClient.training_round`)."""
+PolicyActions = Callable[[list[Any]], Sequence[np.ndarray | None]]
+"""The vehicles' policy actions on their observations, computed together (one list entry
+per vehicle; None: the vehicle computes its own)."""
 
 
 def drive_rounds(
-    rounds: Sequence[RoundSteps], update: Callable[[], Sequence[Mapping[str, Any]]]
+    rounds: Sequence[RoundSteps],
+    update: Callable[[], Sequence[Mapping[str, Any]]],
+    act: PolicyActions | None = None,
 ) -> list[LocalUpdate]:
-    """Drive vehicles' rounds of equal length in lockstep: each takes a step, then
-    ``update()`` gives each its step's update losses (one list entry per round, in
-    order); their :class:`LocalUpdate` s. The updates' time is shared among them
-    equally."""
+    """Drive vehicles' rounds of equal length in lockstep: ``act`` gives every vehicle its
+    policy action on its observation at once (None: each computes its own), each takes a
+    step, then ``update()`` gives each its step's update losses (one list entry per round,
+    in order); their :class:`LocalUpdate` s. The time of the shared acting and updates
+    is shared among them equally."""
     results: list[LocalUpdate | None] = [None] * len(rounds)
-    for steps in rounds:
-        next(steps)
+    observations = [next(steps) for steps in rounds]
     cpu = wall = 0.0
     while True:
+        cpu_started, wall_started = time.process_time(), time.perf_counter()
+        actions = [None] * len(rounds) if act is None else act(observations)
+        cpu += time.process_time() - cpu_started
+        wall += time.perf_counter() - wall_started
+        for steps, action in zip(rounds, actions, strict=True):
+            steps.send(action)
         cpu_started, wall_started = time.process_time(), time.perf_counter()
         losses = update()
         cpu += time.process_time() - cpu_started
         wall += time.perf_counter() - wall_started
         for k, (steps, step_losses) in enumerate(zip(rounds, losses, strict=True)):
             try:
-                steps.send(step_losses)
+                observations[k] = steps.send(step_losses)
             except StopIteration as finished:
                 results[k] = finished.value
         if all(result is not None for result in results):
@@ -224,11 +235,13 @@ class VehicleClient:
         include_targets: bool = True,
         progress: ProgressCallback | None = None,
     ) -> RoundSteps:
-        """:meth:`train` one step at a time, its updates taken by whoever drives it: a
-        generator that yields after each step's transition is observed and takes that
-        step's update losses back (``send``; ``{}`` where no update ran), and returns the
-        round's :class:`LocalUpdate`. :func:`drive_rounds` drives several in lockstep, so
-        that the vehicles of a process can learn in one stacked update."""
+        """:meth:`train` one step at a time, its acting and updates shared with whoever
+        drives it: a generator that yields each step's observation and takes the policy's
+        action on it back (``send``; None: the agent computes it), then yields after the
+        step's transition is observed and takes that step's update losses back (``{}``
+        where no update ran), and returns the round's :class:`LocalUpdate`.
+        :func:`drive_rounds` drives several in lockstep, so that the vehicles of a process
+        can act in one batched forward pass and learn in one stacked update."""
         if num_steps <= 0:
             raise ValueError(f"num_steps must be positive, got {num_steps}")
         agent, env = self.agent, self.env
@@ -243,11 +256,15 @@ class VehicleClient:
             if self._observation is None:
                 self._start_episode()
             observation = self._observation
-            step = acting_step(agent, env, observation)
+            # The others' steps are not this vehicle's time; the shared acting and updates
+            # are (the driver adds their share).
             cpu_yielded, wall_yielded = time.process_time(), time.perf_counter()
-            step_losses = yield
-            # The others' steps are not this vehicle's time; the updates are (the driver
-            # adds their share).
+            policy_action = yield observation
+            cpu_paused += time.process_time() - cpu_yielded
+            wall_paused += time.perf_counter() - wall_yielded
+            step = acting_step(agent, env, observation, policy_action)
+            cpu_yielded, wall_yielded = time.process_time(), time.perf_counter()
+            step_losses = yield None
             cpu_paused += time.process_time() - cpu_yielded
             wall_paused += time.perf_counter() - wall_yielded
             action, reward, info = step.action, step.reward, step.info

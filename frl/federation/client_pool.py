@@ -178,8 +178,9 @@ class VehicleGroup:
             if stacked is None
             else stacked.update_unread
         )
+        act = None if stacked is None else stacked.policy_actions  # one forward for all
         try:
-            updates = drive_rounds(rounds, update)
+            updates = drive_rounds(rounds, update, act)
         except Exception as error:
             names = ", ".join(self.hosts[slot].client.name for slot in slots)
             raise RuntimeError(
