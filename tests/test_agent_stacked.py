@@ -271,31 +271,36 @@ def restore_in_place(agents: list[DDPG], directory: Path) -> None:
         agent.restore(directory / f"agent{k}.pt")
 
 
+def assert_the_graph_trains_as_eager(
+    eager: StackedUpdate, graphed: StackedUpdate, steps: int, directory: Path
+) -> None:
+    """Both stacked updates' agents trained ``steps`` steps, restored in place, then
+    ``steps // 2`` more: the same runs, the graph captured again after the restore."""
+    assert eager.update_graph is None and graphed.update_graph is not None
+    losses = [drive(eager.agents, steps, stacked_updates(eager)),
+              drive(graphed.agents, steps, stacked_updates(graphed))]  # fmt: skip
+    assert graphed.update_graph.captures >= 1
+    assert_same_runs(eager.agents, graphed.agents, *losses)
+    restore_in_place(eager.agents, directory / "eager")
+    restore_in_place(graphed.agents, directory / "graphed")
+    captures = graphed.update_graph.captures
+    losses = [drive(eager.agents, steps // 2, stacked_updates(eager), start=steps),
+              drive(graphed.agents, steps // 2, stacked_updates(graphed), start=steps)]  # fmt: skip
+    assert graphed.stackings == 2 and graphed.update_graph.captures > captures
+    assert_same_runs(eager.agents, graphed.agents, *losses)
+
+
 @pytest.mark.parametrize(
     "options", [{}, {"guide": "gap_acceptance", "guide_weight": 0.5, "n_step": 3}]
 )
 def test_the_stacked_update_through_a_graph_s_static_batch_trains_as_the_eager_one(
     options: dict, tmp_path: Path
 ) -> None:
-    eager_agents, graph_agents = (
-        agents_of(small_config(**options)),
-        agents_of(small_config(**options)),
-    )
-    eager, graphed = StackedUpdate(eager_agents), static_path(StackedUpdate(graph_agents))
-    assert StackedUpdate(agents_of(small_config())).update_graph is None  # a CPU runs eagerly
-    losses = [drive(eager_agents, 50, stacked_updates(eager)),
-              drive(graph_agents, 50, stacked_updates(graphed))]  # fmt: skip
-    assert graphed.update_graph is not None and graphed.update_graph.captures >= 1
-    assert_same_runs(eager_agents, graph_agents, *losses)
-    restore_in_place(eager_agents, tmp_path / "eager")
-    restore_in_place(graph_agents, tmp_path / "graphed")
-    captures = graphed.update_graph.captures
-    losses = [drive(eager_agents, 20, stacked_updates(eager), start=50),
-              drive(graph_agents, 20, stacked_updates(graphed), start=50)]  # fmt: skip
-    assert graphed.stackings == 2 and graphed.update_graph.captures > captures
-    assert_same_runs(eager_agents, graph_agents, *losses)
+    eager = StackedUpdate(agents_of(small_config(**options)))
+    graphed = static_path(StackedUpdate(agents_of(small_config(**options))))
+    assert_the_graph_trains_as_eager(eager, graphed, 50, tmp_path)
     graphed.release()
-    assert not graphed.update_graph.captured
+    assert graphed.update_graph is not None and not graphed.update_graph.captured
 
 
 @cuda
@@ -303,21 +308,9 @@ def test_the_stacked_update_through_a_graph_s_static_batch_trains_as_the_eager_o
 def test_a_captured_stacked_update_trains_as_the_eager_one_on_a_gpu(
     precision: str, tmp_path: Path
 ) -> None:
-    eager_agents = agents_of(small_config(precision=precision, cuda_graph=False), "cuda")
-    graph_agents = agents_of(small_config(precision=precision), "cuda")
-    eager, graphed = StackedUpdate(eager_agents), StackedUpdate(graph_agents)
-    assert eager.update_graph is None and graphed.update_graph is not None
-    losses = [drive(eager_agents, 60, stacked_updates(eager)),
-              drive(graph_agents, 60, stacked_updates(graphed))]  # fmt: skip
-    assert graphed.update_graph.captures >= 1
-    assert_same_runs(eager_agents, graph_agents, *losses)
-    restore_in_place(eager_agents, tmp_path / "eager")
-    restore_in_place(graph_agents, tmp_path / "graphed")
-    captures = graphed.update_graph.captures
-    losses = [drive(eager_agents, 30, stacked_updates(eager), start=60),
-              drive(graph_agents, 30, stacked_updates(graphed), start=60)]  # fmt: skip
-    assert graphed.update_graph.captures > captures
-    assert_same_runs(eager_agents, graph_agents, *losses)
+    eager = StackedUpdate(agents_of(small_config(precision=precision, cuda_graph=False), "cuda"))
+    graphed = StackedUpdate(agents_of(small_config(precision=precision), "cuda"))
+    assert_the_graph_trains_as_eager(eager, graphed, 60, tmp_path)
 
 
 @pytest.mark.parametrize("options", [{}, {"encoder": "flat", "sparse": {"input": False}}])
