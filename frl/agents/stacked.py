@@ -16,6 +16,9 @@ read exactly as before, and the stacked update moves all of them at once.
   step (its moments are views of the stacked moments too; all agents share one step
   count, which is why they must stay in lockstep: every agent is due for an update at the
   same environment step, or none is).
+- The agents act in one batched pass too (:meth:`StackedUpdate.policy_actions`): their
+  actors vmapped over their stacked parameters, each on its own observation; each agent
+  then adds its own exploration noise (:meth:`frl.agents.DDPG.act`'s ``policy_action``).
 - Each agent samples its own batch with its own generator, as it would alone. The batched
   products are not the single ones bit for bit (another kernel), so a stacked run is its
   own run: one seed determines it, resumed or not, but it is not the run of the same
@@ -189,7 +192,8 @@ class StackedUpdate:
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
         self.fingerprint: tuple[int, ...] = ()
         self.stackings = 0
-        """Times the agents were stacked (the first update, and after each replacement)."""
+        """Times the agents were stacked (their first action or update together, and after
+        each replacement)."""
         device = template.device
         self.update_graph = (
             GraphedUpdate(self._step, device, self._tensors_read, packing=STACKED_PACKING)
