@@ -150,8 +150,9 @@ def main() -> None:
         for way in ways:
             config = fleet_config(cuda_graph=way in ("captured", "stacked"))
             vehicles = [Vehicle(i, config, scenes, str(device)) for i in range(count)]
-            agents = [v.agent for v in vehicles]
-            stacked = StackedUpdate(agents) if way.startswith("stacked") else None
+            stacked = (
+                StackedUpdate([v.agent for v in vehicles]) if way.startswith("stacked") else None
+            )
             time_round(vehicles, LEARNING_STARTS + 40, device, stacked)  # fill, warm up
             if device.type == "cuda":
                 torch.cuda.reset_peak_memory_stats(device)
@@ -167,7 +168,7 @@ def main() -> None:
             )
             per_step = 1e3 * seconds / (count * args.interval)
             print(f"| {count} | {way} | {seconds:.1f} | {per_step:.2f} | {memory} |", flush=True)
-            del vehicles, agents, stacked
+            del vehicles, stacked
             if device.type == "cuda":
                 torch.cuda.empty_cache()
 

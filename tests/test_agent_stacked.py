@@ -314,7 +314,9 @@ def test_a_captured_stacked_update_trains_as_the_eager_one_on_a_gpu(
 
 
 @pytest.mark.parametrize("options", [{}, {"encoder": "flat", "sparse": {"input": False}}])
-def test_the_stacked_actors_act_in_one_pass_as_each_acts_alone(options: dict) -> None:
+def test_the_stacked_actors_act_in_one_pass_as_each_acts_alone(
+    options: dict, tmp_path: Path
+) -> None:
     agents = agents_of(small_config(**options))
     stacked = StackedUpdate(agents)
     drive(agents, 40, stacked_updates(stacked))  # the actors learned apart
@@ -327,6 +329,23 @@ def test_the_stacked_actors_act_in_one_pass_as_each_acts_alone(options: dict) ->
         alone = agent._policy_action(agent.layout.flat(obs))
         assert action == pytest.approx(alone, abs=1e-6)
     assert len({float(a) for a in together[:, 0]}) == 3
+    # An agent restored from another's checkpoint acts as that agent, stacked too.
+    agents[1].save(tmp_path / "agent1.pt", include_buffer=True)
+    agents[0].restore(tmp_path / "agent1.pt")
+    restored = stacked.policy_actions(observations)
+    own = agents[0]._policy_action(agents[0].layout.flat(observations[0]))
+    assert restored[0] == pytest.approx(own, abs=1e-6)
+    assert restored[0] != pytest.approx(together[0], abs=1e-6)
+    # A parameter replaced rather than written into: the agents are stacked afresh.
+    last, optimizer = agents[2].networks.actor.layers[-1], agents[2].actor_optimizer
+    held, new = last.bias, torch.nn.Parameter(last.bias.detach() + 0.5)
+    group = optimizer.param_groups[0]["params"]
+    group[[p is held for p in group].index(True)] = new
+    optimizer.state[new] = optimizer.state.pop(held)
+    last.bias = new
+    replaced = stacked.policy_actions(observations)
+    own = agents[2]._policy_action(agents[2].layout.flat(observations[2]))
+    assert replaced[2] == pytest.approx(own, abs=1e-6) and stacked.stackings == 2
     with pytest.raises(ValueError, match="one observation per agent"):
         stacked.policy_actions(observations[:2])
     with pytest.raises(ValueError, match="shape"):

@@ -191,6 +191,8 @@ class StackedUpdate:
         """Each parameter of the networks, one row per agent (leaf tensors)."""
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
         self.fingerprint: tuple[int, ...] = ()
+        self._acting_pointers: tuple[int, ...] = ()
+        """The agents' actor parameters' addresses when acting last found them stacked."""
         self.stackings = 0
         """Times the agents were stacked (their first action or update together, and after
         each replacement)."""
@@ -259,7 +261,11 @@ class StackedUpdate:
         ]
         if any(flat.size != template.obs_dim for flat in flats):
             raise ValueError(f"expected observations of shape {template.obs_shape}")
-        self._stack_if_replaced()
+        # Acting reads the actors alone: the whole fingerprint (every parameter and moment
+        # of every agent) is checked only where an actor's tensor was replaced.
+        if not self.stacked or self._actor_pointers() != self._acting_pointers:
+            self._stack_if_replaced()
+            self._acting_pointers = self._actor_pointers()
         actor = template.networks.actor
         inputs = stacked_actor_inputs(actor, flats, template.device)
         params = {
@@ -442,6 +448,12 @@ class StackedUpdate:
         if agent.constraint is not None:
             optimizers["cost_critic"] = agent.constraint.optimizer
         return optimizers
+
+    def _actor_pointers(self) -> tuple[int, ...]:
+        """The addresses of every agent's actor parameters."""
+        return tuple(
+            p.data_ptr() for agent in self.agents for p in agent.networks.actor.parameters()
+        )
 
     def _fingerprint(self) -> tuple[int, ...]:
         """The addresses of every tensor the agents hold for learning."""

@@ -138,17 +138,21 @@ def drive_rounds(
     results: list[LocalUpdate | None] = [None] * len(rounds)
     observations = [next(steps) for steps in rounds]
     cpu = wall = 0.0
-    while True:
+
+    def shared(work: Callable[[], Any]) -> Any:
+        """``work()``, its time counted as the vehicles' shared time."""
+        nonlocal cpu, wall
         cpu_started, wall_started = time.process_time(), time.perf_counter()
-        actions = [None] * len(rounds) if act is None else act(observations)
+        result = work()
         cpu += time.process_time() - cpu_started
         wall += time.perf_counter() - wall_started
+        return result
+
+    while True:
+        actions = [None] * len(rounds) if act is None else shared(lambda: act(observations))
         for steps, action in zip(rounds, actions, strict=True):
             steps.send(action)
-        cpu_started, wall_started = time.process_time(), time.perf_counter()
-        losses = update()
-        cpu += time.process_time() - cpu_started
-        wall += time.perf_counter() - wall_started
+        losses = shared(update)
         for k, (steps, step_losses) in enumerate(zip(rounds, losses, strict=True)):
             try:
                 observations[k] = steps.send(step_losses)
