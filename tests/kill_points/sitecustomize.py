@@ -47,13 +47,13 @@ if _KILL_AT and not _IN_RAY:
     elif _point == "vehicle":
         _step = frl.federation.client.acting_step
 
-        def _step_of_one_vehicle(agent, env, obs):
+        def _step_of_one_vehicle(agent, env, obs, *rest):
             global _reached
             if [env.config.task] == _task:
                 _reached += 1
                 if _reached == int(_count):
                     os.kill(os.getpid(), signal.SIGKILL)
-            return _step(agent, env, obs)
+            return _step(agent, env, obs, *rest)
 
         frl.federation.client.acting_step = _step_of_one_vehicle
     elif _point == "drive":
