@@ -16,6 +16,7 @@ ACTOR_UPDATES: tuple[str, ...] = ("tanh", "inverting_gradients")
 GUIDES: tuple[str, ...] = ("none", "gap_acceptance", "committed_gap_acceptance")
 CRITICS: tuple[str, ...] = ("expected", "quantile")
 COST_CRITICS: tuple[str, ...] = ("separate", "head")
+COST_TARGETS: tuple[str, ...] = ("n_step", "episode")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
@@ -84,6 +85,7 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "sparse.input": (True, False, "auto"),
     "critic.kind": CRITICS,
     "cost_critic": COST_CRITICS,
+    "cost_target": COST_TARGETS,
 }
 EXECUTION_FIELDS: tuple[str, ...] = ("cuda_graph",)
 """Fields that say how an update is launched, not what it computes: an agent loads a
@@ -335,6 +337,13 @@ class DDPGConfig:
     large as the reward critic, with its own encoder, which doubles the critic's work in
     every update (how the two compare: docs/studies.md, "A cheaper cost critic: the
     head"). A budget saved before this field learned a separate critic, and loads as one."""
+    cost_target: str = "n_step"
+    """What the cost critic learns towards: ``n_step``, the n-step TD target (the n-step
+    discounted cost, then Q_c of its target network), as the reward critic does; or
+    ``episode``, where the transition's episode terminated (a collision, an arrival), the
+    discounted collisions to that end as they happened, with no bootstrap, and the
+    n-step target only where a time limit cut the episode off. Each episode's transitions
+    then reach the buffer when it ends."""
     critic: CriticConfig = field(default_factory=CriticConfig)
     """What the reward critic learns, and what of it the actor climbs."""
 
@@ -385,7 +394,7 @@ class DDPGConfig:
             f"lagrange_gains must be three finite numbers >= 0 (Kp, Ki, Kd), got {gains!r}",
         )
         if budget is None:
-            for name in ("lagrange_gains", "lagrange_window", "cost_critic"):
+            for name in ("lagrange_gains", "lagrange_window", "cost_critic", "cost_target"):
                 _require(
                     getattr(self, name) == getattr(DDPGConfig, name),
                     f"{name} tunes the collision budget: set collision_budget too",
@@ -395,6 +404,11 @@ class DDPGConfig:
     def costed(self) -> bool:
         """Whether the agent learns a cost critic under a collision budget."""
         return self.collision_budget is not None
+
+    @property
+    def costs_to_go(self) -> bool:
+        """Whether the cost critic learns episodes' costs to go (``cost_target``)."""
+        return self.cost_target == "episode"
 
     @property
     def guided(self) -> bool:

@@ -122,9 +122,10 @@ class CollisionConstraint:
     ) -> tuple[Tensor, dict[str, Tensor]]:  # fmt: skip
         """The cost critic's loss on ``batch`` (forward only): squared error to the n-step
         TD target of the discounted collisions to come, bootstrapped from its own target
-        network. ``hidden``, ``next_hidden``: the last hidden layers of the critic at the
-        batch and of the target critic at the next states, detached (what a cost head
-        reads)."""
+        network; where the batch carries an episode's cost to its end
+        (``Batch.costs_final``), that cost is the target. ``hidden``, ``next_hidden``: the
+        last hidden layers of the critic at the batch and of the target critic at the next
+        states, detached (what a cost head reads)."""
         nets = self.networks
         assert nets.cost_critic is not None and nets.cost_critic_target is not None
         assert batch.costs is not None
@@ -134,7 +135,10 @@ class CollisionConstraint:
             )
         with self.autocast():
             cost_q = self.values(nets.cost_critic, batch.obs, batch.actions, hidden)
-        loss = F.mse_loss(cost_q, td_target(batch.costs, batch.terminated, next_cost, discount))
+        ends = batch.terminated
+        if batch.costs_final is not None:
+            ends = torch.maximum(ends, batch.costs_final)
+        loss = F.mse_loss(cost_q, td_target(batch.costs, ends, next_cost, discount))
         return loss, {"cost_critic_loss": loss.detach(), "cost_q_mean": cost_q.detach().mean()}
 
     def price(

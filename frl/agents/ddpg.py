@@ -130,9 +130,12 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
             cfg.buffer_size, self.obs_shape, self.action_dim, rng(buffer_seq), sparse=compact,
             sparse_width=cfg.sparse.capacity, guided=cfg.guided, costed=cfg.costed,
             vehicle_geometry=None if encoder is None else encoder.geometry,
+            costs_to_go=cfg.costs_to_go,
         )  # fmt: skip
         self.teacher = Teacher(cfg.guide, self.layout, self.scale) if cfg.guided else None
-        self.writer = TransitionWriter(self.buffer, cfg.n_step, cfg.gamma, self.teacher)
+        self.writer = TransitionWriter(
+            self.buffer, cfg.n_step, cfg.gamma, self.teacher, hold_episode=cfg.costs_to_go
+        )
         self.proximal = ProximalPull()
         """FedProx's pull towards the global model (off until :meth:`set_proximal_anchor`)."""
         self.update_graph = (

@@ -4,6 +4,11 @@ With n steps the critic's target is ``R + gamma^k * (1 - terminated) * Q'(s_{t+k
 where ``R = r_t + gamma r_{t+1} + ... + gamma^(k-1) r_{t+k-1}`` and k = n, or fewer where
 the episode ended first. The +5 of an arrival 40 steps after the decision to go reaches
 that decision in 40 / n target updates instead of 40.
+
+Holding each episode until it ends (``hold_episode``) hands out the same n-step
+transitions, all at the episode's end, and where the episode terminated (a collision, an
+arrival) each with its discounted cost to that end: the cost critic's target itself,
+read from the episode instead of bootstrapped from Q_c (``DDPGConfig.cost_target``).
 """
 
 from __future__ import annotations
@@ -26,16 +31,22 @@ class Transition(NamedTuple):
     """Steps between ``obs`` and ``next_obs``: the target bootstraps with gamma**horizon."""
     cost: float = 0.0
     """The discounted cost sum over ``horizon`` steps (collisions: a collision budget)."""
+    cost_to_go: float | None = None
+    """The discounted cost sum from ``obs`` to the end of an episode that terminated,
+    where the accumulator holds episodes; None: not known (the episode was cut off, or
+    episodes are not held)."""
 
 
 class NStepAccumulator:
-    """Holds the last n one-step transitions of the running episode."""
+    """Holds the last n one-step transitions of the running episode, or with
+    ``hold_episode`` all of them until it ends."""
 
-    def __init__(self, n: int, gamma: float) -> None:
+    def __init__(self, n: int, gamma: float, hold_episode: bool = False) -> None:
         if not isinstance(n, int) or n < 1:
             raise ValueError(f"n must be a positive integer, got {n!r}")
         self.n = n
         self.gamma = gamma
+        self.hold_episode = hold_episode
         self._pending: deque[Transition] = deque()
 
     def __len__(self) -> int:
@@ -52,7 +63,7 @@ class NStepAccumulator:
         )
         if terminated:
             return self._drain(terminated=True)
-        if len(self._pending) < self.n:
+        if self.hold_episode or len(self._pending) < self.n:
             return []
         ready = self._combine(list(self._pending), terminated=False)
         self._pending.popleft()
@@ -66,7 +77,21 @@ class NStepAccumulator:
     def _drain(self, terminated: bool) -> list[Transition]:
         steps = list(self._pending)
         self._pending.clear()
-        return [self._combine(steps[i:], terminated) for i in range(len(steps))]
+        if not self.hold_episode:  # fewer than n steps are pending
+            return [self._combine(steps[i:], terminated) for i in range(len(steps))]
+        # The windows push would have handed out one by one, then the shorter last ones.
+        last = len(steps)
+        transitions = [
+            self._combine(steps[i : i + self.n], terminated and i + self.n >= last)
+            for i in range(last)
+        ]
+        if not terminated:
+            return transitions
+        to_go = 0.0
+        for i in reversed(range(last)):
+            to_go = steps[i].cost + self.gamma ** steps[i].horizon * to_go
+            transitions[i] = transitions[i]._replace(cost_to_go=to_go)
+        return transitions
 
     def _combine(self, steps: list[Transition], terminated: bool) -> Transition:
         reward, cost, elapsed = 0.0, 0.0, 0

@@ -42,6 +42,10 @@ class Batch(NamedTuple):
     """A teacher's actions at ``obs`` (normalised), where the buffer stores them."""
     costs: Tensor | None = None
     """The discounted cost sums (collisions), where the buffer stores them."""
+    costs_final: Tensor | None = None
+    """1 where ``costs`` is the discounted cost to the end of the transition's episode
+    (the cost critic's whole target), 0 where the cost critic bootstraps; where the
+    buffer keeps costs to go."""
 
     def to(self, device: Any) -> Batch:
         """The same batch on ``device`` (copies from the host do not wait)."""
@@ -169,6 +173,9 @@ class ReplayBuffer:
         guided: store a teacher's action at ``obs`` with every transition
             (:attr:`frl.agents.DDPGConfig.guide`).
         costed: store each transition's cost (a collision budget's cost critic learns it).
+        costs_to_go: a costed buffer whose transitions may carry, in place of their
+            n-step cost, the discounted cost to their episode's end, marked as such
+            (``Batch.costs_final``).
         vehicle_geometry: a vehicles encoder's ``geometry``
             (:class:`frl.agents.vehicle_encoder.VehicleSetEncoder`): compact batches come
             with their vehicles, found once per batch in NumPy.
@@ -185,9 +192,12 @@ class ReplayBuffer:
         guided: bool = False,
         costed: bool = False,
         vehicle_geometry: tuple[int, int, int] | None = None,
+        costs_to_go: bool = False,
     ) -> None:
         if capacity <= 0:
             raise ValueError(f"capacity must be positive, got {capacity}")
+        if costs_to_go and not costed:
+            raise ValueError("a buffer keeps costs to go only where it keeps costs (costed)")
         self.capacity = capacity
         self.obs_shape = tuple(obs_shape)
         self.num_features = int(np.prod(self.obs_shape, dtype=np.int64))
@@ -211,6 +221,8 @@ class ReplayBuffer:
         )
         self.costed = costed
         self.costs = committed_when_written((capacity if costed else 0,), np.float32)
+        self.costs_to_go = costs_to_go
+        self.costs_final = committed_when_written((capacity if costs_to_go else 0,), np.float32)
         self.pos = 0
         self.size = 0
 
@@ -222,7 +234,8 @@ class ReplayBuffer:
         """Bytes held by the storage arrays (allocated for the full capacity)."""
         obs_bytes = self._obs.nbytes + self._next_obs.nbytes
         scalars = self.actions.nbytes + self.rewards.nbytes + self.terminated.nbytes
-        return obs_bytes + scalars + self.guide_actions.nbytes + self.costs.nbytes
+        costs = self.costs.nbytes + self.costs_final.nbytes
+        return obs_bytes + scalars + self.guide_actions.nbytes + costs
 
     def add(
         self,
@@ -234,11 +247,15 @@ class ReplayBuffer:
         horizon: int = 1,
         guide_action: np.ndarray | None = None,
         cost: float = 0.0,
+        cost_final: bool = False,
     ) -> None:
         """Store one transition; ``terminated`` must exclude time-limit truncation.
         ``horizon``: steps from ``obs`` to ``next_obs`` (an n-step transition's k).
         A ``guided`` buffer needs the teacher's action at ``obs``; a ``costed`` one keeps
-        ``cost``."""
+        ``cost``, which with ``cost_final`` is the discounted cost to the episode's end (a
+        buffer that keeps ``costs_to_go`` only)."""
+        if cost_final and not self.costs_to_go:
+            raise ValueError("this buffer does not keep costs to go (costs_to_go=False)")
         flat_obs = np.asarray(obs, dtype=np.float32).reshape(-1)
         flat_next = np.asarray(next_obs, dtype=np.float32).reshape(-1)
         if flat_obs.size != self.num_features or flat_next.size != self.num_features:
@@ -263,6 +280,8 @@ class ReplayBuffer:
             self.guide_actions[slot] = np.asarray(guide_action, np.float32).reshape(-1)
         if self.costed:
             self.costs[slot] = cost
+        if self.costs_to_go:
+            self.costs_final[slot] = float(cost_final)
         self.pos = (slot + 1) % self.capacity
         self.size = min(self.size + 1, self.capacity)
 
@@ -305,6 +324,7 @@ class ReplayBuffer:
             torch.from_numpy(self.horizons[slots]),
             torch.from_numpy(self.guide_actions[slots]) if self.guided else None,
             torch.from_numpy(self.costs[slots]) if self.costed else None,
+            torch.from_numpy(self.costs_final[slots]) if self.costs_to_go else None,
         )
         return batch if torch.device(device).type == "cpu" else batch.to(device)
 
@@ -314,6 +334,7 @@ class ReplayBuffer:
             ("actions", "rewards", "terminated", "horizons")
             + (("guide_actions",) if self.guided else ())
             + (("costs",) if self.costed else ())
+            + (("costs_final",) if self.costs_to_go else ())
         )
 
     def state_dict(self) -> dict[str, Any]:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from frl.agents.acting import ActionScale
-from frl.agents.n_step import NStepAccumulator
+from frl.agents.n_step import NStepAccumulator, Transition
 from frl.agents.observations import ObservationLayout
 from frl.agents.replay_buffer import ReplayBuffer
 
@@ -52,14 +52,22 @@ class TransitionWriter:
         gamma: the discount inside an n-step reward.
         teacher: labels every transition with the teacher's action at ``obs`` (a guided
             agent); None: no labels.
+        hold_episode: write each episode's transitions when it ends, those of an episode
+            that terminated with their discounted cost to its end (the buffer must keep
+            it: ``ReplayBuffer(costs_to_go=True)``).
     """
 
     def __init__(
-        self, buffer: ReplayBuffer, n_step: int, gamma: float, teacher: Teacher | None = None
-    ) -> None:
+        self, buffer: ReplayBuffer, n_step: int, gamma: float, teacher: Teacher | None = None,
+        hold_episode: bool = False,
+    ) -> None:  # fmt: skip
+        if hold_episode and not buffer.costs_to_go:
+            raise ValueError(
+                "holding episodes for their costs to go needs a buffer that keeps them"
+            )
         self.buffer = buffer
-        self.pending = NStepAccumulator(n_step, gamma)
-        """The running episode's last steps, not yet a complete transition."""
+        self.pending = NStepAccumulator(n_step, gamma, hold_episode)
+        """The running episode's steps not yet written as transitions."""
         self.teacher = teacher
 
     def write(
@@ -69,17 +77,20 @@ class TransitionWriter:
         """One step (``action`` normalised). ``terminated`` excludes time-limit cut-offs,
         which must still bootstrap; ``cost``: the step's collisions, where counted."""
         for transition in self.pending.push(obs, action, reward, next_obs, terminated, 1, cost):
-            self._store(*transition)
+            self._store(transition)
 
     def end_episode(self) -> None:
         """The episode was cut off (a time limit, a new episode): its pending steps become
         transitions that bootstrap from the last state reached."""
         for transition in self.pending.flush():
-            self._store(*transition)
+            self._store(transition)
 
-    def _store(
-        self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
-        terminated: bool, horizon: int, cost: float,
-    ) -> None:  # fmt: skip
+    def _store(self, transition: Transition) -> None:
+        obs, action, reward, next_obs, terminated, horizon, cost, cost_to_go = transition
         label = None if self.teacher is None else self.teacher(obs)
-        self.buffer.add(obs, action, reward, next_obs, terminated, horizon, label, cost)
+        if cost_to_go is None:
+            self.buffer.add(obs, action, reward, next_obs, terminated, horizon, label, cost)
+        else:
+            self.buffer.add(
+                obs, action, reward, next_obs, terminated, horizon, label, cost_to_go, True
+            )
