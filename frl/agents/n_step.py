@@ -77,15 +77,14 @@ class NStepAccumulator:
     def _drain(self, terminated: bool) -> list[Transition]:
         steps = list(self._pending)
         self._pending.clear()
-        if not self.hold_episode:  # fewer than n steps are pending
-            return [self._combine(steps[i:], terminated) for i in range(len(steps))]
-        # The windows push would have handed out one by one, then the shorter last ones.
+        # The n-step windows push would have handed out one by one (a held episode's), then
+        # the shorter last ones; only those that reach the last step end with it.
         last = len(steps)
         transitions = [
             self._combine(steps[i : i + self.n], terminated and i + self.n >= last)
             for i in range(last)
         ]
-        if not terminated:
+        if not (terminated and self.hold_episode):
             return transitions
         to_go = 0.0
         for i in reversed(range(last)):

@@ -88,9 +88,8 @@ class TransitionWriter:
     def _store(self, transition: Transition) -> None:
         obs, action, reward, next_obs, terminated, horizon, cost, cost_to_go = transition
         label = None if self.teacher is None else self.teacher(obs)
-        if cost_to_go is None:
-            self.buffer.add(obs, action, reward, next_obs, terminated, horizon, label, cost)
-        else:
-            self.buffer.add(
-                obs, action, reward, next_obs, terminated, horizon, label, cost_to_go, True
-            )
+        final = cost_to_go is not None
+        self.buffer.add(
+            obs, action, reward, next_obs, terminated, horizon, label,
+            cost_to_go if final else cost, final,
+        )  # fmt: skip
