@@ -302,7 +302,7 @@ def validate(
         fleet_size = plan.fleet_size
         env_config = EnvConfig.from_dict(data["env"])
         reward_config = RewardConfig.from_dict(reward)
-        agent_config = DDPGConfig.from_dict(agent)
+        agent_config = DDPGConfig.from_dict(agent, saved=False)
         check_teacher(agent_config.guide, env_config.route_observation)
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error

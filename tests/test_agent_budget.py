@@ -187,9 +187,12 @@ def test_without_a_budget_the_agent_has_no_cost_critic_and_ignores_costs() -> No
 def test_a_budget_that_never_prices_a_crash_trains_exactly_as_no_budget(cost_critic: str) -> None:
     # Pendulum has no collisions: lambda stays 0, and the cost critic, built after the
     # others from the same stream, changes neither their initial weights nor any draw;
-    # a cost head's loss does not reach the critic it reads.
+    # a cost head's loss does not reach the critic it reads. On n-step cost targets: costs
+    # to go hold each episode until it ends, so updates sample another buffer.
     plain, env = pendulum_agent()
-    budgeted, other_env = pendulum_agent(collision_budget=0.1, cost_critic=cost_critic)
+    budgeted, other_env = pendulum_agent(
+        collision_budget=0.1, cost_critic=cost_critic, cost_target="n_step"
+    )
     plain.learn(env, 300)
     budgeted.learn(other_env, 300)
     assert budgeted.constraint.lagrangian.multiplier == 0.0

@@ -103,7 +103,7 @@ def states(agent: DDPG) -> dict[str, torch.Tensor]:
         {"actor_update": "tanh", "collision_budget": None},
         {"guide": "gap_acceptance", "guide_weight": 0.5, "n_step": 3},
         {"critic": {"kind": "quantile", "quantiles": 8}},
-        {"cost_target": "episode"},
+        {"cost_target": "n_step"},
     ],
 )
 def test_each_stacked_agent_learns_as_it_would_alone(options: dict) -> None:

@@ -91,6 +91,8 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         # the paper's budget trains without a collision budget
         ("budget=paper agent.lagrange_window=10", "lagrange_window tunes the collision budget"),
         ("budget=paper agent.cost_critic=separate", "cost_critic tunes the collision budget"),
+        ("agent.collision_budget=null agent.cost_target=n_step", "cost_target tunes the collision"),
+        ("agent.cost_target=monte_carlo", "cost_target must be one of n_step, episode"),
         ("reward.brake_past_line_cost=0.1", "reward.brake_past_line_cost=0.1 was retired"),
         ("env.commit_at_line=true", "env.commit_at_line=True was retired"),
         (

@@ -108,9 +108,19 @@ def test_bad_settings_are_refused_in_one_line() -> None:
             np.zeros(1), np.zeros(1), 0.0, np.zeros(1), True, cost=1.0, cost_final=True
         )
     with pytest.raises(ValueError, match="cost_target tunes the collision budget"):
-        DDPGConfig(cost_target="episode")
+        DDPGConfig(cost_target="n_step")
     with pytest.raises(ValueError, match="cost_target must be one of n_step, episode"):
         DDPGConfig(collision_budget=0.1, cost_target="monte_carlo")
+
+
+def test_a_budget_learns_costs_to_go_by_default_and_one_saved_before_loads_as_it_ran() -> None:
+    assert DDPGConfig(collision_budget=0.02).costs_to_go
+    assert not DDPGConfig().costs_to_go  # no budget, no cost critic
+    saved = DDPGConfig(collision_budget=0.02).to_dict()
+    del saved["cost_target"]  # a budget saved before the field learned by n-step targets
+    assert DDPGConfig.from_dict(saved).cost_target == "n_step"
+    unbudgeted = {**DDPGConfig().to_dict(), "cost_target": "n_step"}  # saved then, no budget
+    assert DDPGConfig.from_dict(unbudgeted) == DDPGConfig()
 
 
 class RiskyRun(gym.Env):

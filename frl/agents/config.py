@@ -32,14 +32,18 @@ FIELDS_ADDED_LATER: dict[str, object] = {
 those agents ran with (which are not today's defaults)."""
 
 
-def agent_fields_as_run(data: dict[str, Any]) -> dict[str, Any]:
+def agent_fields_as_run(data: dict[str, Any], saved: bool = True) -> dict[str, Any]:
     """Saved agent settings (a checkpoint's, a run config's) as the agent ran: the
     :data:`FIELDS_ADDED_LATER` they lack at their old values, retired options
     (:mod:`frl.agents.retired`) at their off values dropped; one at any other value
-    raises :class:`frl.agents.retired.RetiredOptionError`. The one place both are read."""
+    raises :class:`frl.agents.retired.RetiredOptionError`. The one place both are read.
+    ``saved=False``: a user's settings, whose ``cost_target`` is taken as given."""
     as_run = nested_fields({**FIELDS_ADDED_LATER, **data})
     if as_run.get("collision_budget") is not None:
         as_run.setdefault("cost_critic", "separate")  # budgets saved before the cost head
+        as_run.setdefault("cost_target", "n_step")  # budgets saved before costs to go
+    elif saved:
+        as_run.pop("cost_target", None)  # "n_step" when saved before "episode" was the default
     if isinstance(as_run.get("critic"), dict):
         as_run["critic"] = without_retired_critic(as_run["critic"])
     return without_retired(as_run)
@@ -337,13 +341,15 @@ class DDPGConfig:
     large as the reward critic, with its own encoder, which doubles the critic's work in
     every update (how the two compare: docs/studies.md, "A cheaper cost critic: the
     head"). A budget saved before this field learned a separate critic, and loads as one."""
-    cost_target: str = "n_step"
-    """What the cost critic learns towards: ``n_step``, the n-step TD target (the n-step
-    discounted cost, then Q_c of its target network), as the reward critic does; or
-    ``episode``, where the transition's episode terminated (a collision, an arrival), the
-    discounted collisions to that end as they happened, with no bootstrap, and the
-    n-step target only where a time limit cut the episode off. Each episode's transitions
-    then reach the buffer when it ends."""
+    cost_target: str = "episode"
+    """What the cost critic learns towards: ``episode``, where the transition's episode
+    terminated (a collision, an arrival), the discounted collisions to that end as they
+    happened, with no bootstrap, and the n-step target only where a time limit cut the
+    episode off (each episode's transitions then reach the buffer when it ends); or
+    ``n_step``, the n-step TD target (the n-step discounted cost, then Q_c of its target
+    network), as the reward critic does. ``episode`` collided less at five seeds of the
+    default (docs/studies.md, "The cost critic on what each episode cost"); a budget saved
+    before this field learned by n-step targets, and loads so."""
     critic: CriticConfig = field(default_factory=CriticConfig)
     """What the reward critic learns, and what of it the actor climbs."""
 
@@ -408,7 +414,7 @@ class DDPGConfig:
     @property
     def costs_to_go(self) -> bool:
         """Whether the cost critic learns episodes' costs to go (``cost_target``)."""
-        return self.cost_target == "episode"
+        return self.costed and self.cost_target == "episode"
 
     @property
     def guided(self) -> bool:
@@ -436,10 +442,11 @@ class DDPGConfig:
         return data
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> DDPGConfig:
+    def from_dict(cls, data: dict[str, Any], saved: bool = True) -> DDPGConfig:
         """Inverse of :meth:`to_dict`; unknown keys raise ``TypeError``. Keys of
-        :data:`FIELDS_ADDED_LATER` and retired keys as :func:`agent_fields_as_run` reads them."""
-        data = agent_fields_as_run(data)
+        :data:`FIELDS_ADDED_LATER` and retired keys as :func:`agent_fields_as_run` reads
+        them; ``saved=False`` for a user's settings rather than a saved agent's."""
+        data = agent_fields_as_run(data, saved)
         for name in ("hidden_sizes", "lagrange_gains"):
             if name in data:
                 data[name] = tuple(data[name])

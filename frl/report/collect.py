@@ -32,7 +32,9 @@ AGENT_PANELS: dict[str, str] = {
     "agent.collision_budget=null",
     "collision-budget": "python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4 --runs-dir "
     "outputs/repro/runs/collision-budget --data-dir outputs/repro/data/collision-budget -- "
-    "budget=data",
+    "budget=data agent.precision=float32 agent.cost_critic=separate agent.cost_target=n_step",
+    "costs-to-go": "python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4 --runs-dir "
+    "outputs/repro/runs/costs-to-go --data-dir outputs/repro/data/costs-to-go -- budget=data",
     "guided": "python -m frl.reproduce --figures fig4-guided",
     "paper-agent": "python -m frl.reproduce --figures fig4 --runs-dir outputs/repro/runs/"
     "paper-agent --data-dir outputs/repro/data/paper-agent -- agent=ddpg-paper",
@@ -41,7 +43,9 @@ AGENT_PANELS: dict[str, str] = {
 and 5 trained on another agent or budget, and the command that makes each:
 ``data-budget`` (the default agent at the main command's budget, 80,000 steps and an
 update every 8, where the editions train the paper's 10,000 and an update a step, without
-the collision budget), ``collision-budget`` (the same with it: the main command's agent),
+the collision budget), ``collision-budget`` (the same with it, as it was first measured:
+float32, a separate cost critic on n-step targets), ``costs-to-go`` (the main command's
+agent: the cost head on each episode's costs to go, in the CPU's precision),
 ``guided`` (``agent=ddpg-guided``, which learns from the gap-acceptance rule) and
 ``paper-agent`` (the paper's Table II agent). Each is reported as a panel of its own,
 never mixed with the editions' runs."""

@@ -111,6 +111,18 @@ _Discussion not written yet._
 
 {runs-collision-budget}
 
+## Figs. 4 and 5 at the default: the cost critic on each episode's costs to go
+
+{claims-costs-to-go}
+
+{fig4-costs-to-go}
+
+{fig4-tested-costs-to-go}
+
+{fig5-costs-to-go}
+
+{runs-costs-to-go}
+
 ## Figs. 4 and 5 with the guided agent
 
 {claims-guided}
