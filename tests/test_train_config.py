@@ -54,6 +54,11 @@ def test_the_main_command_trains_eight_steps_per_update_and_the_editions_one():
     )  # fmt: skip
     # The default budget trains under a collision budget; the paper's, as the paper, not.
     assert (settings.agent.collision_budget, paper.agent.collision_budget) == (0.02, None)
+    # Its cost critic learns each episode's costs to go; the guided preset keeps the n-step
+    # target it was measured with.
+    assert settings.agent.costs_to_go and not paper.agent.costs_to_go
+    guided = full(["+experiment=guided-committed"]).agent
+    assert (guided.collision_budget, guided.cost_target) == (0.02, "n_step")
     assert paper.agent == full(["agent.train_freq=1", "agent.collision_budget=null"]).agent
     paper_line = schedule_line(paper.plan, paper.agent)
     assert "5 rounds of 2,000 updates per vehicle (2,000 environment steps" in paper_line
