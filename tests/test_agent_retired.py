@@ -46,6 +46,7 @@ ON = {
     "budget_noise_free_every": 4,
     "branches": {"probability": 0.1, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10},
     "self_imitation": 1.0,
+    "reward_target": "episode",
 }
 CONTEXT = {
     "guide_filter": {"guide": "gap_acceptance", "guide_weight": 1.0},

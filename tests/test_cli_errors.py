@@ -93,8 +93,6 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("budget=paper agent.cost_critic=separate", "cost_critic tunes the collision budget"),
         ("agent.collision_budget=null agent.cost_target=n_step", "cost_target tunes the collision"),
         ("agent.cost_target=monte_carlo", "cost_target must be one of n_step, episode"),
-        ("agent.reward_target=episode agent.cost_target=n_step", "set cost_target=episode"),
-        ("agent.reward_target=bogus", "reward_target must be one of n_step, episode"),
         ("reward.brake_past_line_cost=0.1", "reward.brake_past_line_cost=0.1 was retired"),
         ("env.commit_at_line=true", "env.commit_at_line=True was retired"),
         (

@@ -17,7 +17,6 @@ GUIDES: tuple[str, ...] = ("none", "gap_acceptance", "committed_gap_acceptance")
 CRITICS: tuple[str, ...] = ("expected", "quantile")
 COST_CRITICS: tuple[str, ...] = ("separate", "head")
 COST_TARGETS: tuple[str, ...] = ("n_step", "episode")
-REWARD_TARGETS: tuple[str, ...] = ("n_step", "episode")
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "warmup_hold_steps": 1.0,
@@ -91,7 +90,6 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "critic.kind": CRITICS,
     "cost_critic": COST_CRITICS,
     "cost_target": COST_TARGETS,
-    "reward_target": REWARD_TARGETS,
 }
 EXECUTION_FIELDS: tuple[str, ...] = ("cuda_graph",)
 """Fields that say how an update is launched, not what it computes: an agent loads a
@@ -352,14 +350,6 @@ class DDPGConfig:
     network), as the reward critic does. ``episode`` collided less at five seeds of the
     default (docs/studies.md, "The cost critic on what each episode cost"); a budget saved
     before this field learned by n-step targets, and loads so."""
-    reward_target: str = "n_step"
-    """What the reward critic learns towards: ``n_step``, the n-step TD target (the
-    paper's DDPG, bootstrapped from its target networks); or ``episode``, where the
-    transition's episode terminated, the discounted return to that end as it happened,
-    with no bootstrap, as ``cost_target=episode`` does for collisions (the n-step target
-    where a time limit cut the episode off). Each episode's transitions then reach the
-    buffer when it ends; under a collision budget it needs ``cost_target=episode``, since
-    both end the bootstrap of the same transitions."""
     critic: CriticConfig = field(default_factory=CriticConfig)
     """What the reward critic learns, and what of it the actor climbs."""
 
@@ -409,11 +399,6 @@ class DDPGConfig:
             and all(math.isfinite(g) and g >= 0 for g in gains),
             f"lagrange_gains must be three finite numbers >= 0 (Kp, Ki, Kd), got {gains!r}",
         )
-        _require(
-            not (self.returns_to_go and self.costed and not self.costs_to_go),
-            "reward_target=episode ends the bootstrap of each terminated episode's "
-            "transitions, the cost critic's too: with a collision budget set cost_target=episode",
-        )
         if budget is None:
             for name in ("lagrange_gains", "lagrange_window", "cost_critic", "cost_target"):
                 _require(
@@ -430,11 +415,6 @@ class DDPGConfig:
     def costs_to_go(self) -> bool:
         """Whether the cost critic learns episodes' costs to go (``cost_target``)."""
         return self.costed and self.cost_target == "episode"
-
-    @property
-    def returns_to_go(self) -> bool:
-        """Whether the reward critic learns episodes' returns to go (``reward_target``)."""
-        return self.reward_target == "episode"
 
     @property
     def guided(self) -> bool:

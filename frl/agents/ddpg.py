@@ -134,9 +134,8 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         )  # fmt: skip
         self.teacher = Teacher(cfg.guide, self.layout, self.scale) if cfg.guided else None
         self.writer = TransitionWriter(
-            self.buffer, cfg.n_step, cfg.gamma, self.teacher,
-            hold_episode=cfg.costs_to_go, returns_to_go=cfg.returns_to_go,
-        )  # fmt: skip
+            self.buffer, cfg.n_step, cfg.gamma, self.teacher, hold_episode=cfg.costs_to_go
+        )
         self.proximal = ProximalPull()
         """FedProx's pull towards the global model (off until :meth:`set_proximal_anchor`)."""
         self.update_graph = (

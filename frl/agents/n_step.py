@@ -9,9 +9,6 @@ Holding each episode until it ends (``hold_episode``) hands out the same n-step
 transitions, all at the episode's end, and where the episode terminated (a collision, an
 arrival) each with its discounted cost to that end: the cost critic's target itself,
 read from the episode instead of bootstrapped from Q_c (``DDPGConfig.cost_target``).
-With ``returns_to_go`` the episode is held too, and each transition of one that
-terminated carries its discounted return to that end as its reward, marked terminated:
-the reward critic's target is then that return (``DDPGConfig.reward_target``).
 """
 
 from __future__ import annotations
@@ -42,18 +39,14 @@ class Transition(NamedTuple):
 
 class NStepAccumulator:
     """Holds the last n one-step transitions of the running episode, or with
-    ``hold_episode`` (costs to go) or ``returns_to_go`` all of them until it ends."""
+    ``hold_episode`` all of them until it ends."""
 
-    def __init__(
-        self, n: int, gamma: float, hold_episode: bool = False, returns_to_go: bool = False
-    ) -> None:
+    def __init__(self, n: int, gamma: float, hold_episode: bool = False) -> None:
         if not isinstance(n, int) or n < 1:
             raise ValueError(f"n must be a positive integer, got {n!r}")
         self.n = n
         self.gamma = gamma
         self.hold_episode = hold_episode
-        self.returns_to_go = returns_to_go
-        self._holds = hold_episode or returns_to_go
         self._pending: deque[Transition] = deque()
 
     def __len__(self) -> int:
@@ -70,7 +63,7 @@ class NStepAccumulator:
         )
         if terminated:
             return self._drain(terminated=True)
-        if self._holds or len(self._pending) < self.n:
+        if self.hold_episode or len(self._pending) < self.n:
             return []
         ready = self._combine(list(self._pending), terminated=False)
         self._pending.popleft()
@@ -91,17 +84,12 @@ class NStepAccumulator:
             self._combine(steps[i : i + self.n], terminated and i + self.n >= last)
             for i in range(last)
         ]
-        if not (terminated and self._holds):
+        if not (terminated and self.hold_episode):
             return transitions
-        cost_to_go = reward_to_go = 0.0
+        to_go = 0.0
         for i in reversed(range(last)):
-            discount = self.gamma ** steps[i].horizon
-            cost_to_go = steps[i].cost + discount * cost_to_go
-            reward_to_go = steps[i].reward + discount * reward_to_go
-            if self.hold_episode:
-                transitions[i] = transitions[i]._replace(cost_to_go=cost_to_go)
-            if self.returns_to_go:
-                transitions[i] = transitions[i]._replace(reward=reward_to_go, terminated=True)
+            to_go = steps[i].cost + self.gamma ** steps[i].horizon * to_go
+            transitions[i] = transitions[i]._replace(cost_to_go=to_go)
         return transitions
 
     def _combine(self, steps: list[Transition], terminated: bool) -> Transition:

@@ -26,6 +26,8 @@ _DOUBT = '"A price on doubt: bootstrapped critic heads"'
 _DOUBT_COMMIT = "c23eea2"
 _SELF_IMITATION = '"Self-imitation: its own driving that beat its critic"'
 _SELF_IMITATION_COMMIT = "bc5ce4d"
+_RETURNS = '"The reward critic on what each episode returned"'
+_RETURNS_COMMIT = "bd113f8"
 _BRANCHES_OFF = {"probability": 0.0, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10}
 """The ``agent.branches`` group as every config and checkpoint wrote it with branches off."""
 
@@ -53,6 +55,7 @@ RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "budget_noise_free_every": RetiredOption(0, _KEEPABLE_BUDGET, _KEEPABLE_BUDGET_COMMIT),
     "branches": RetiredOption(_BRANCHES_OFF, _BRANCHES, _BRANCHES_COMMIT),
     "self_imitation": RetiredOption(0.0, _SELF_IMITATION, _SELF_IMITATION_COMMIT),
+    "reward_target": RetiredOption("n_step", _RETURNS, _RETURNS_COMMIT),
 }
 """Each retired key, with its off value and its study."""
 

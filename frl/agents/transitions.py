@@ -55,20 +55,18 @@ class TransitionWriter:
         hold_episode: write each episode's transitions when it ends, those of an episode
             that terminated with their discounted cost to its end (the buffer must keep
             it: ``ReplayBuffer(costs_to_go=True)``).
-        returns_to_go: write each episode's transitions when it ends, those of an episode
-            that terminated with their discounted return to its end as reward, terminated.
     """
 
     def __init__(
         self, buffer: ReplayBuffer, n_step: int, gamma: float, teacher: Teacher | None = None,
-        hold_episode: bool = False, returns_to_go: bool = False,
+        hold_episode: bool = False,
     ) -> None:  # fmt: skip
         if hold_episode and not buffer.costs_to_go:
             raise ValueError(
                 "holding episodes for their costs to go needs a buffer that keeps them"
             )
         self.buffer = buffer
-        self.pending = NStepAccumulator(n_step, gamma, hold_episode, returns_to_go)
+        self.pending = NStepAccumulator(n_step, gamma, hold_episode)
         """The running episode's steps not yet written as transitions."""
         self.teacher = teacher
 
