@@ -27,7 +27,7 @@ _DOUBT_COMMIT = "c23eea2"
 _SELF_IMITATION = '"Self-imitation: its own driving that beat its critic"'
 _SELF_IMITATION_COMMIT = "bc5ce4d"
 _RETURNS = '"The reward critic on what each episode returned"'
-_RETURNS_COMMIT = "bd113f8"
+_RETURNS_COMMIT = "fd12ff8"
 _BRANCHES_OFF = {"probability": 0.0, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10}
 """The ``agent.branches`` group as every config and checkpoint wrote it with branches off."""
 
