@@ -220,6 +220,7 @@ def evaluate_policy(
     progress: bool = False,
     verbose: bool = True,
     route_observation: bool = False,
+    window_observation: bool = False,
 ) -> dict[str, Any]:
     """Test any driver on frl's test protocol, beside the yardsticks on the same seeds.
 
@@ -238,6 +239,8 @@ def evaluate_policy(
         route_observation: the policy observes the ego's route beside the grid (a Dict
             observation, :attr:`frl.envs.EnvConfig.route_observation`), as it trained;
             the same episodes either way.
+        window_observation: the policy observes the grid's crossing cars as times
+            beside the grid (:attr:`frl.envs.EnvConfig.window_observation`), as it trained.
 
     Returns:
         ``{"per_task", "average", "yardsticks": {name: {"per_task", "average"}},
@@ -249,7 +252,7 @@ def evaluate_policy(
             all before any episode runs.
     """
     act = _policy_callable(policy)
-    _check_route_observation(policy, route_observation)
+    _check_observation_parts(policy, route_observation, window_observation)
     settings = default_settings(traffic, seed)  # refuses an unknown traffic, a bad seed
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes <= 0:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
@@ -265,7 +268,9 @@ def evaluate_policy(
     try:
         for task in tasks:
             env_config = dataclasses.replace(
-                evaluation_env(settings, task), route_observation=route_observation
+                evaluation_env(settings, task),
+                route_observation=route_observation,
+                window_observation=window_observation,
             )
             env = IntersectionEnv(env_config, settings.reward)
             try:
@@ -289,21 +294,27 @@ def evaluate_policy(
     return evaluation
 
 
-def _check_route_observation(policy: Any, route_observation: bool) -> None:
+def _check_observation_parts(policy: Any, route: bool, windows: bool) -> None:
     """A policy whose observation space is known must get the observation it expects."""
     space = getattr(policy, "observation_space", None)
     layout = getattr(policy, "layout", None)
     if layout is not None and getattr(layout, "parts", None) is not None:
-        expects_route = "route" in layout.parts
+        parts = set(layout.parts)
     elif isinstance(space, gym.spaces.Dict):
-        expects_route = "route" in space.spaces
+        parts = set(space.spaces)
     elif isinstance(space, gym.spaces.Box) or layout is not None:
-        expects_route = False
+        parts = set()
     else:
         return  # a plain callable: it gets what it asks for
-    if expects_route != route_observation:
-        wanted = "a Dict of the grid and the route" if expects_route else "the grid alone"
-        raise ValueError(f"this policy observes {wanted}: pass route_observation={expects_route}")
+    for part, option, given in (
+        ("route", "route_observation", route),
+        ("windows", "window_observation", windows),
+    ):
+        if (part in parts) != given:
+            wanted = "observes" if part in parts else "does not observe"
+            raise ValueError(
+                f"this policy {wanted} the {part} beside the grid: pass {option}={part in parts}"
+            )
 
 
 def _policy_callable(policy: Any) -> Callable[[Any], Any]:

@@ -10,6 +10,11 @@ first ``N`` test episodes per task (its own test seeds) and, for each, counts:
   15 m), and how many of those collided, against the collisions of the others;
 - **speed at the line**: the mean speed when the car crossed the line (m/s).
 
+For a model that observes the crossing cars' windows (``env.window_observation=true``),
+it asks the actor, on every state before the line with a car coming, for its action with
+the windows as seen against the windows blanked, where the plain rule brakes and where it
+goes: an actor that does not read the windows answers the same.
+
 For a model that observes its route (``env.route_observation=true``) it then asks, on
 every state it visited within 10 m of the line, what the networks make of the distance:
 the actor's action, the critic's Q(s, brake) - Q(s, go) and, under a collision budget, the
@@ -30,11 +35,16 @@ import torch
 from frl import run_directory as rundir
 from frl.agents import DDPG, SparseRows
 from frl.envs import IntersectionEnv
+from frl.envs.conflicts import FEATURES_PER_SIDE, SIDES, WINDOW_FEATURES
 from frl.envs.intersection import ROUTE_DISTANCE_SCALE_M
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
 from frl.policies import install_guide, make_yardstick
+
+NO_CAR_WINDOWS = np.array([0.0, 0.0, 1.0, 1.0, 0.0, 0.0] * len(SIDES), np.float32)
+"""The windows part with no car coming on either side."""
+assert len(NO_CAR_WINDOWS) == FEATURES_PER_SIDE * len(SIDES)
 
 JUNCTION_DEPTH_M = 15.0
 """A brake counts as one past the stop line while the nose is past it by less than this
@@ -80,6 +90,40 @@ def part_offset(agent: DDPG, part: str) -> int:
             return offset
         offset += int(np.prod(shape))
     raise KeyError(part)
+
+
+def window_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[str, float]:
+    """Whether the actor reads the crossing cars' windows: on the states it visited before
+    the line with a car coming, its action with the windows as seen against the windows
+    blanked (no car coming on either side), where the plain rule brakes and where it goes."""
+    rule = make_yardstick("gap_acceptance", env)
+    states, rule_brakes = [], []
+    for seed in seeds:
+        observation, _ = env.reset(seed=seed)
+        while True:
+            windows = observation["windows"]
+            if env.stop_line_distance_m > 0 and (windows[0] or windows[6]):
+                states.append(agent.layout.flat(observation))
+                rule_brakes.append(float(np.asarray(rule(observation)).reshape(-1)[0]) < 0)
+            action = agent.act(observation, explore=False)
+            observation, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                break
+    flat = np.stack(states).astype(np.float32)
+    brakes = np.array(rule_brakes)
+    start = part_offset(agent, "windows")
+    blank = flat.copy()
+    blank[:, start : start + WINDOW_FEATURES] = NO_CAR_WINDOWS
+    answers: dict[str, float] = {"states": len(states), "rule_brakes": int(brakes.sum())}
+    for name, rows in (("seen", flat), ("blanked", blank)):
+        x = torch.from_numpy(rows)
+        with torch.no_grad():
+            actions = agent.actor(SparseRows.from_dense(x) if agent.sparse else x).reshape(-1)
+        actions = actions.numpy()
+        for verdict, where in (("brakes", brakes), ("goes", ~brakes)):
+            mean = float(actions[where].mean()) if where.any() else float("nan")
+            answers[f"action_{name}_rule_{verdict}"] = mean
+    return answers
 
 
 def line_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[str, float]:
@@ -158,6 +202,16 @@ def main() -> None:
                         if "cost_brake_minus_go_past" in reading
                         else ""
                     )
+                )
+            if settings.env.window_observation:
+                seen = window_reading(agent, env, seeds)
+                print(
+                    f"{task:<9} model reads the windows on {seen['states']} states before the "
+                    f"line with a car coming (the rule brakes on {seen['rule_brakes']}): action "
+                    f"where the rule brakes {seen['action_seen_rule_brakes']:+.3f} "
+                    f"(windows blanked {seen['action_blanked_rule_brakes']:+.3f}), where it goes "
+                    f"{seen['action_seen_rule_goes']:+.3f} "
+                    f"(blanked {seen['action_blanked_rule_goes']:+.3f})"
                 )
         finally:
             env.close()

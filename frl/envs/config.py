@@ -206,9 +206,6 @@ RETIRED_ENV_OPTIONS: dict[str, RetiredOption] = {
     "commit_at_line": RetiredOption(
         False, '"Where the car stands: the committed rule and the junction in view"', "cff1f10"
     ),
-    "window_observation": RetiredOption(
-        False, '"Where the car stands: the committed rule and the junction in view"', "840d759"
-    ),
 }
 """Env options that frl retired (:mod:`frl.retirement`)."""
 
@@ -316,6 +313,12 @@ class EnvConfig:
     and the distance along the route (negative past the line). Before the junction the
     grid looks the same for every task, where a car in the far lane matters going
     straight or left and not turning right; off (the paper's observation): the grid alone."""
+    window_observation: bool = False
+    """Observe the grid's crossing cars as time windows beside the grid: a Dict observation
+    with a ``windows`` part (after ``route`` where both are on), per side of the ego the
+    binding crossing car's window on its path and the ego's window on that car's lane
+    (:meth:`frl.envs.conflicts.CrossingReader.features`). Read from the grid alone, as the
+    gap-acceptance rule reads it; off: no such part."""
 
     def __post_init__(self) -> None:
         _require(
@@ -339,6 +342,10 @@ class EnvConfig:
         _require(
             isinstance(self.route_observation, bool),
             f"route_observation must be true or false, got {self.route_observation!r}",
+        )
+        _require(
+            isinstance(self.window_observation, bool),
+            f"window_observation must be true or false, got {self.window_observation!r}",
         )
 
     def to_dict(self) -> dict[str, Any]:

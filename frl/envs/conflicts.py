@@ -6,9 +6,9 @@ from ``car_enters`` to ``car_leaves`` seconds from now (its lateral distance ove
 lateral speed, widened by its length); the ego occupies that car's lane from
 ``ego_enters`` to ``ego_leaves`` at full throttle from its present speed (the car's
 distance ahead marks the lane). The gap-acceptance rules (:mod:`frl.policies`) brake
-on these windows. Nothing is read that the grid does not hold. (Given to the learner
-as features beside the grid, they did not help it: docs/studies.md, "Where the car
-stands".)
+on these windows; ``window_observation`` gives them to a learner as features
+(:func:`CrossingReader.features`), so that a gap is a few numbers rather than a pattern
+of cells. Nothing is read that the grid does not hold.
 """
 
 from __future__ import annotations
@@ -20,6 +20,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from frl.envs.config import EnvConfig
+
+FEATURE_HORIZON_S = 10.0
+"""The window features' times are in units of this many seconds, clipped to [0, 1]."""
+SIDES = ("left", "right")
+"""The sides a crossing car comes from, in the features' order (left: the near lane)."""
+FEATURES_PER_SIDE = 6
+WINDOW_FEATURES = FEATURES_PER_SIDE * len(SIDES)
+"""Per side: a car comes, a car stands in the path, and the binding car's car_enters,
+car_leaves, ego_enters, ego_leaves (see :meth:`CrossingReader.features`)."""
 
 
 @dataclass(frozen=True)
@@ -123,3 +132,37 @@ class CrossingReader:
         """Seconds the ego needs for ``distance`` metres at full throttle from ``speed``."""
         a = self.acceleration
         return (-speed + math.sqrt(speed * speed + 2.0 * a * distance)) / a
+
+    def features(self, grid: np.ndarray) -> np.ndarray:
+        """``WINDOW_FEATURES`` float32 values in [0, 1], per side (left, then right):
+        a car comes, a car stands in the path, and the binding car's car_enters,
+        car_leaves, ego_enters and ego_leaves over :data:`FEATURE_HORIZON_S`.
+
+        The binding car is the one whose window leaves the ego the least time: the
+        smallest ``max(car_enters - ego_leaves, ego_enters - car_leaves)``, negative where
+        the two overlap. Without a coming car its times read as far away (car 1, ego 0).
+        """
+        values = np.zeros(WINDOW_FEATURES, np.float32)
+        binding: dict[str, tuple[float, CrossingWindow]] = {}
+        for window in self.windows(grid):
+            offset = FEATURES_PER_SIDE * SIDES.index(window.side)
+            if window.standing_in_path:
+                values[offset + 1] = 1.0
+                continue
+            slack = max(
+                window.car_enters - window.ego_leaves, window.ego_enters - window.car_leaves
+            )
+            held = binding.get(window.side)
+            if held is None or slack < held[0]:
+                binding[window.side] = (slack, window)
+        for index, side in enumerate(SIDES):
+            offset = FEATURES_PER_SIDE * index
+            held = binding.get(side)
+            if held is None:
+                values[offset + 2 : offset + 4] = 1.0
+                continue
+            window = held[1]
+            times = (window.car_enters, window.car_leaves, window.ego_enters, window.ego_leaves)
+            values[offset] = 1.0
+            values[offset + 2 : offset + 6] = np.clip(np.array(times) / FEATURE_HORIZON_S, 0, 1)
+        return values

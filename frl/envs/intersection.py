@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 
 from frl.envs.config import TASKS, EnvConfig, RewardConfig
+from frl.envs.conflicts import WINDOW_FEATURES, CrossingReader
 from frl.envs.observation import OccupancyGrid
 from frl.envs.reward import RewardSignals, cost_terms, reward_terms
 from frl.envs.scenario import Scenario, build_scenario
@@ -81,7 +82,9 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
     - Observation: the (26, 18, 3) float32 grid of Eq. (1) in the ego's frame
       (:class:`frl.envs.observation.OccupancyGrid`); with ``route_observation`` a Dict of
       that grid (``"grid"``) and the ego's route (``"route"``: the task one-hot and the
-      distance to the stop line in tens of metres).
+      distance to the stop line in tens of metres); with ``window_observation`` a
+      ``"windows"`` part too, the grid's crossing cars as times
+      (:meth:`frl.envs.conflicts.CrossingReader.features`).
     - Action: ``Box(-1, 1, (1,))``, an acceleration of ``action * accel_scale`` m/s^2.
       The ego's speed is set every step: v <- clip(v + a * dt, 0, speed_limit).
       Actions outside [-1, 1] are clipped; a non-finite action raises ``ValueError``.
@@ -129,15 +132,19 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         high = np.broadcast_to(np.array([speed_high, heading_high, 1.0], np.float32), grid.shape)
         grid_space = gym.spaces.Box(low.copy(), high.copy(), dtype=np.float32)
         self.observation_space: gym.spaces.Box | gym.spaces.Dict = grid_space
+        parts: dict[str, gym.spaces.Box] = {}
         if config.route_observation:
             start = config.scenario.ego_start_distance / ROUTE_DISTANCE_SCALE_M
             end = -config.scenario.arm_length / ROUTE_DISTANCE_SCALE_M
-            route_space = gym.spaces.Box(
+            parts["route"] = gym.spaces.Box(
                 np.array([0.0, 0.0, 0.0, end], np.float32),
                 np.array([1.0, 1.0, 1.0, start], np.float32),
                 dtype=np.float32,
             )
-            self.observation_space = gym.spaces.Dict({"grid": grid_space, "route": route_space})
+        if config.window_observation:
+            parts["windows"] = gym.spaces.Box(0.0, 1.0, (WINDOW_FEATURES,), dtype=np.float32)
+        if parts:
+            self.observation_space = gym.spaces.Dict({"grid": grid_space, **parts})
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
 
         self._scenario: Scenario | None = None
@@ -149,6 +156,7 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         self._travelled = 0.0
         self._vehicles: list[VehicleState] | None = None
         self._grid = OccupancyGrid(config.grid)
+        self._crossings = CrossingReader(config) if config.window_observation else None
         # The commands since SUMO last started, for restore(): see EnvSnapshot.
         self._sumo_seed: int | None = None
         self._speed_commands = array("d")
@@ -235,10 +243,16 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         return route
 
     def _observation(self, grid: np.ndarray) -> Any:
-        """The grid, or with ``route_observation`` the grid and the ego's route."""
-        if not self.config.route_observation:
+        """The grid, or with ``route_observation`` or ``window_observation`` a Dict of
+        the grid and the ego's route or the crossing cars' times."""
+        if isinstance(self.observation_space, gym.spaces.Box):
             return grid
-        return {"grid": grid, "route": self.route()}
+        observation = {"grid": grid}
+        if self.config.route_observation:
+            observation["route"] = self.route()
+        if self._crossings is not None:
+            observation["windows"] = self._crossings.features(grid)
+        return observation
 
     def snapshot(self) -> EnvSnapshot:
         """The env's state now, for :meth:`restore` (a look-ahead, for instance).
