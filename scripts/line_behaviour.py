@@ -35,16 +35,12 @@ import torch
 from frl import run_directory as rundir
 from frl.agents import DDPG, SparseRows
 from frl.envs import IntersectionEnv
-from frl.envs.conflicts import FEATURES_PER_SIDE, SIDES, WINDOW_FEATURES
+from frl.envs.conflicts import FEATURES_PER_SIDE, WINDOW_FEATURES, CrossingReader
 from frl.envs.intersection import ROUTE_DISTANCE_SCALE_M
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
 from frl.policies import install_guide, make_yardstick
-
-NO_CAR_WINDOWS = np.array([0.0, 0.0, 1.0, 1.0, 0.0, 0.0] * len(SIDES), np.float32)
-"""The windows part with no car coming on either side."""
-assert len(NO_CAR_WINDOWS) == FEATURES_PER_SIDE * len(SIDES)
 
 JUNCTION_DEPTH_M = 15.0
 """A brake counts as one past the stop line while the nose is past it by less than this
@@ -102,7 +98,8 @@ def window_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[
         observation, _ = env.reset(seed=seed)
         while True:
             windows = observation["windows"]
-            if env.stop_line_distance_m > 0 and (windows[0] or windows[6]):
+            car_coming = windows[::FEATURES_PER_SIDE].any()  # each side's first value
+            if env.stop_line_distance_m > 0 and car_coming:
                 states.append(agent.layout.flat(observation))
                 rule_brakes.append(float(np.asarray(rule(observation)).reshape(-1)[0]) < 0)
             action = agent.act(observation, explore=False)
@@ -113,7 +110,9 @@ def window_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[
     brakes = np.array(rule_brakes)
     start = part_offset(agent, "windows")
     blank = flat.copy()
-    blank[:, start : start + WINDOW_FEATURES] = NO_CAR_WINDOWS
+    # the windows of an empty grid: no car coming on either side
+    no_car = CrossingReader(env.config).features(np.zeros(env.observation_space["grid"].shape))
+    blank[:, start : start + WINDOW_FEATURES] = no_car
     answers: dict[str, float] = {"states": len(states), "rule_brakes": int(brakes.sum())}
     for name, rows in (("seen", flat), ("blanked", blank)):
         x = torch.from_numpy(rows)
