@@ -85,6 +85,17 @@ class CrossingReader:
         """The ego's speed (m/s), read from its own cell of the grid."""
         return float(grid[self.ego_cell][0]) * self._speed_scale
 
+    def committed(self, grid: np.ndarray, distance_to_line_m: float) -> bool:
+        """Whether the ego can no longer stop before the stop line: its braking distance
+        at full brake, from the speed in its own cell, reaches the distance left (always
+        true past the line, where the distance is negative)."""
+        braking_distance = self.ego_speed(grid) ** 2 / (2.0 * self.acceleration)
+        return braking_distance >= distance_to_line_m
+
+    def no_car_features(self, grid_shape: tuple[int, ...]) -> np.ndarray:
+        """:meth:`features` of an empty grid of ``grid_shape``: no car coming on either side."""
+        return self.features(np.zeros(grid_shape, np.float32))
+
     def windows(self, grid: np.ndarray) -> Iterator[CrossingWindow]:
         """The grid's crossing cars ahead of the ego, in the grid's row-major order, one at
         a time (a rule that brakes at the first conflict reads no further).

@@ -98,8 +98,7 @@ class CommittedGapAcceptancePolicy(GapAcceptancePolicy):
 
     def __call__(self, observation: Any) -> np.ndarray:
         grid = observation["grid"] if isinstance(observation, Mapping) else observation
-        braking_distance = self._ego_speed(grid) ** 2 / (2.0 * self._acceleration)
-        if braking_distance >= self.distance_to_line(observation):
+        if self._crossings.committed(grid, self.distance_to_line(observation)):
             return np.array([1.0], dtype=np.float32)
         return super().__call__(grid)
 
