@@ -100,11 +100,62 @@ def test_the_env_adds_the_windows_of_its_own_grid_after_the_route():
         EnvConfig(window_observation="yes")
 
 
+def test_committed_means_the_braking_distance_reaches_the_line():
+    reader = CrossingReader(EnvConfig())  # full brake: 1 m/s^2
+    five_metres_a_second = grid_with(ego_speed=0.25)  # speed channel x 20 m/s: 12.5 m to stop
+    assert reader.committed(five_metres_a_second, 12.4)
+    assert not reader.committed(five_metres_a_second, 12.6)
+    assert reader.committed(grid_with(), -0.1)  # at rest past the line
+    assert not reader.committed(grid_with(), 0.1)
+    assert reader.no_car_features((26, 18, 3)).tolist() == NO_CAR + NO_CAR
+
+
+def test_windows_until_committed_blanks_them_from_the_point_of_no_return_on():
+    config = EnvConfig(
+        task="straight",
+        route_observation=True,
+        window_observation=True,
+        windows_until_committed=True,
+    )
+    reader = CrossingReader(config)
+    no_car = reader.no_car_features(config.grid.shape)
+    env = IntersectionEnv(config)
+    seen = {"before": 0, "committed": 0, "blanked a car": 0}
+    try:
+        for seed in (3, 5, 7):
+            observation, _ = env.reset(seed=seed)
+            for step in range(200):
+                grid = observation["grid"]
+                if reader.committed(grid, env.stop_line_distance_m):
+                    seen["committed"] += 1
+                    np.testing.assert_array_equal(observation["windows"], no_car)
+                    seen["blanked a car"] += bool(reader.features(grid)[[0, 6]].any())
+                else:
+                    seen["before"] += 1
+                    np.testing.assert_array_equal(observation["windows"], reader.features(grid))
+                action = [0.2 if step < 40 else 1.0]  # slow at first: cars come into view
+                observation, _, terminated, truncated, _ = env.step(action)
+                if terminated or truncated:
+                    break
+    finally:
+        env.close()
+    assert seen["before"] > 0 and seen["committed"] > 0 and seen["blanked a car"] > 0, seen
+
+
+def test_windows_until_committed_needs_the_windows_and_a_bool():
+    with pytest.raises(ValueError, match="windows_until_committed needs window_observation"):
+        EnvConfig(windows_until_committed=True)
+    with pytest.raises(ValueError, match="windows_until_committed must be true or false"):
+        EnvConfig(window_observation=True, windows_until_committed="yes")
+
+
 def test_the_yardsticks_cache_ignores_what_the_model_observes():
     seeds = [1, 3]
     plain = cache_key("gap_acceptance", EnvConfig(), RewardConfig(), seeds)
     both = EnvConfig(window_observation=True, route_observation=True)
     assert cache_key("gap_acceptance", both, RewardConfig(), seeds) == plain
+    blanked = dataclasses.replace(both, windows_until_committed=True)
+    assert cache_key("gap_acceptance", blanked, RewardConfig(), seeds) == plain
 
 
 WINDOW_SPACE = gym.spaces.Dict(
