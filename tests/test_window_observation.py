@@ -193,3 +193,27 @@ def test_an_agent_reads_the_windows_saves_and_is_refused_the_grid_alone(tmp_path
     )
     with pytest.raises(ValueError, match="pass window_observation=True"):
         evaluate_policy(agent, episodes=1, yardsticks=(), verbose=False)
+
+
+def test_evaluate_policy_drives_a_policy_that_saw_the_windows_until_committed():
+    no_car = CrossingReader(EnvConfig()).no_car_features((26, 18, 3))
+    past_the_line = []
+
+    def full_throttle(observation: dict[str, np.ndarray]) -> np.ndarray:
+        if observation["route"][3] < 0:  # past the line: always committed
+            past_the_line.append(np.array_equal(observation["windows"], no_car))
+        return np.ones(1, np.float32)
+
+    evaluate_policy(
+        full_throttle,
+        episodes=1,
+        tasks=["right"],
+        yardsticks=(),
+        verbose=False,
+        route_observation=True,
+        window_observation=True,
+        windows_until_committed=True,
+    )
+    assert past_the_line and all(past_the_line)
+    with pytest.raises(ValueError, match="pass window_observation=True too"):
+        evaluate_policy(full_throttle, episodes=1, yardsticks=(), windows_until_committed=True)
