@@ -221,7 +221,6 @@ def evaluate_policy(
     verbose: bool = True,
     route_observation: bool = False,
     window_observation: bool = False,
-    windows_until_committed: bool = False,
 ) -> dict[str, Any]:
     """Test any driver on frl's test protocol, beside the yardsticks on the same seeds.
 
@@ -242,9 +241,6 @@ def evaluate_policy(
             the same episodes either way.
         window_observation: the policy observes the grid's crossing cars as times
             beside the grid (:attr:`frl.envs.EnvConfig.window_observation`), as it trained.
-        windows_until_committed: with ``window_observation``, the windows read "no car
-            coming" once the car can no longer stop before the line
-            (:attr:`frl.envs.EnvConfig.windows_until_committed`), as it trained.
 
     Returns:
         ``{"per_task", "average", "yardsticks": {name: {"per_task", "average"}},
@@ -257,11 +253,6 @@ def evaluate_policy(
     """
     act = _policy_callable(policy)
     _check_observation_parts(policy, route_observation, window_observation)
-    if windows_until_committed and not window_observation:
-        raise ValueError(
-            "windows_until_committed blanks the windows beside the grid: pass "
-            "window_observation=True too"
-        )
     settings = default_settings(traffic, seed)  # refuses an unknown traffic, a bad seed
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes <= 0:
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
@@ -280,7 +271,6 @@ def evaluate_policy(
                 evaluation_env(settings, task),
                 route_observation=route_observation,
                 window_observation=window_observation,
-                windows_until_committed=windows_until_committed,
             )
             env = IntersectionEnv(env_config, settings.reward)
             try:

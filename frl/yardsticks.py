@@ -32,7 +32,6 @@ def cache_key(name: str, env: EnvConfig, reward: RewardConfig, seeds: Sequence[i
     env_fields.pop("backend")  # libsumo and TraCI run the same simulation
     env_fields.pop("route_observation", None)  # the yardsticks read the grid alone
     env_fields.pop("window_observation", None)  # nor the windows beside it
-    env_fields.pop("windows_until_committed", None)
     payload = {
         "version": YARDSTICK_VERSION,
         "policy": name,

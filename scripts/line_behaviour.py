@@ -19,9 +19,8 @@ For a model that observes its route (``env.route_observation=true``) it then ask
 every state it visited within 10 m of the line, what the networks make of the distance:
 the actor's action, the critic's Q(s, brake) - Q(s, go) and, under a collision budget, the
 cost critic's Q_c(s, brake) - Q_c(s, go) with the distance set to 5 m before the line
-against 2 m past it, the grid unchanged (the windows, under ``env.windows_until_committed``,
-as the env would show them at that distance). A network that does not read the line
-answers the same for both.
+against 2 m past it, the grid unchanged. A network that does not read
+the line answers the same for both.
 """
 
 from __future__ import annotations
@@ -128,34 +127,22 @@ def window_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[
 
 def line_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[str, float]:
     """The actor's and critic's answers with the distance set before against past the line."""
-    states, grids = [], []
+    states = []
     for seed in seeds:
         observation, _ = env.reset(seed=seed)
         while True:
             if abs(env.stop_line_distance_m) <= 10.0:
                 states.append(agent.layout.flat(observation))
-                grids.append(observation["grid"])
             action = agent.act(observation, explore=False)
             observation, _, terminated, truncated, _ = env.step(action)
             if terminated or truncated:
                 break
     flat = np.stack(states).astype(np.float32)
     distance_column = part_offset(agent, "route") + 3  # the route's last entry
-    if env.config.windows_until_committed:
-        reader = CrossingReader(env.config)
-        no_car = reader.no_car_features(env.config.grid.shape)
-        start = part_offset(agent, "windows")
-        window_columns = slice(start, start + WINDOW_FEATURES)
-
-        def windows_at(grid: np.ndarray, metres: float) -> np.ndarray:
-            return no_car if reader.committed(grid, metres) else reader.features(grid)
-
     answers = {}
     for name, metres in (("before", 5.0), ("past", -2.0)):
         moved = flat.copy()
         moved[:, distance_column] = metres / ROUTE_DISTANCE_SCALE_M
-        if env.config.windows_until_committed:  # the windows the env shows at that distance
-            moved[:, window_columns] = [windows_at(grid, metres) for grid in grids]
         x = torch.from_numpy(moved)
         obs = SparseRows.from_dense(x) if agent.sparse else x
         with torch.no_grad():

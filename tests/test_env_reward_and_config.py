@@ -68,12 +68,14 @@ def test_a_retired_reward_option_loads_off_and_is_refused_on():
         RewardConfig.from_dict({"unknown_weight": 1.0})
 
 
-def test_a_retired_env_option_loads_off_and_is_refused_on():
-    """Runs saved with the shield at the stop line still read with it off; on, one line."""
-    saved = {**EnvConfig().to_dict(), "commit_at_line": False}
+@pytest.mark.parametrize("option", ["commit_at_line", "windows_until_committed"])
+def test_a_retired_env_option_loads_off_and_is_refused_on(option: str):
+    """Runs saved with a retired env option (the shield at the stop line, the windows
+    blanked once committed) still read with it off; on, one line."""
+    saved = {**EnvConfig().to_dict(), option: False}
     assert EnvConfig.from_dict(saved) == EnvConfig()
-    with pytest.raises(RetiredOptionError, match=r"^env\.commit_at_line=True was retired: "):
-        EnvConfig.from_dict({**saved, "commit_at_line": True})
+    with pytest.raises(RetiredOptionError, match=rf"^env\.{option}=True was retired: "):
+        EnvConfig.from_dict({**saved, option: True})
 
 
 def test_a_retired_reward_override_at_off_is_dropped_from_the_command_line():

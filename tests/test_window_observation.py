@@ -110,52 +110,11 @@ def test_committed_means_the_braking_distance_reaches_the_line():
     assert reader.no_car_features((26, 18, 3)).tolist() == NO_CAR + NO_CAR
 
 
-def test_windows_until_committed_blanks_them_from_the_point_of_no_return_on():
-    config = EnvConfig(
-        task="straight",
-        route_observation=True,
-        window_observation=True,
-        windows_until_committed=True,
-    )
-    reader = CrossingReader(config)
-    no_car = reader.no_car_features(config.grid.shape)
-    env = IntersectionEnv(config)
-    seen = {"before": 0, "committed": 0, "blanked a car": 0}
-    try:
-        for seed in (3, 5, 7):
-            observation, _ = env.reset(seed=seed)
-            for step in range(200):
-                grid = observation["grid"]
-                if reader.committed(grid, env.stop_line_distance_m):
-                    seen["committed"] += 1
-                    np.testing.assert_array_equal(observation["windows"], no_car)
-                    seen["blanked a car"] += bool(reader.features(grid)[[0, 6]].any())
-                else:
-                    seen["before"] += 1
-                    np.testing.assert_array_equal(observation["windows"], reader.features(grid))
-                action = [0.2 if step < 40 else 1.0]  # slow at first: cars come into view
-                observation, _, terminated, truncated, _ = env.step(action)
-                if terminated or truncated:
-                    break
-    finally:
-        env.close()
-    assert seen["before"] > 0 and seen["committed"] > 0 and seen["blanked a car"] > 0, seen
-
-
-def test_windows_until_committed_needs_the_windows_and_a_bool():
-    with pytest.raises(ValueError, match="windows_until_committed needs window_observation"):
-        EnvConfig(windows_until_committed=True)
-    with pytest.raises(ValueError, match="windows_until_committed must be true or false"):
-        EnvConfig(window_observation=True, windows_until_committed="yes")
-
-
 def test_the_yardsticks_cache_ignores_what_the_model_observes():
     seeds = [1, 3]
     plain = cache_key("gap_acceptance", EnvConfig(), RewardConfig(), seeds)
     both = EnvConfig(window_observation=True, route_observation=True)
     assert cache_key("gap_acceptance", both, RewardConfig(), seeds) == plain
-    blanked = dataclasses.replace(both, windows_until_committed=True)
-    assert cache_key("gap_acceptance", blanked, RewardConfig(), seeds) == plain
 
 
 WINDOW_SPACE = gym.spaces.Dict(
@@ -193,27 +152,3 @@ def test_an_agent_reads_the_windows_saves_and_is_refused_the_grid_alone(tmp_path
     )
     with pytest.raises(ValueError, match="pass window_observation=True"):
         evaluate_policy(agent, episodes=1, yardsticks=(), verbose=False)
-
-
-def test_evaluate_policy_drives_a_policy_that_saw_the_windows_until_committed():
-    no_car = CrossingReader(EnvConfig()).no_car_features((26, 18, 3))
-    past_the_line = []
-
-    def full_throttle(observation: dict[str, np.ndarray]) -> np.ndarray:
-        if observation["route"][3] < 0:  # past the line: always committed
-            past_the_line.append(np.array_equal(observation["windows"], no_car))
-        return np.ones(1, np.float32)
-
-    evaluate_policy(
-        full_throttle,
-        episodes=1,
-        tasks=["right"],
-        yardsticks=(),
-        verbose=False,
-        route_observation=True,
-        window_observation=True,
-        windows_until_committed=True,
-    )
-    assert past_the_line and all(past_the_line)
-    with pytest.raises(ValueError, match="pass window_observation=True too"):
-        evaluate_policy(full_throttle, episodes=1, yardsticks=(), windows_until_committed=True)

@@ -206,6 +206,9 @@ RETIRED_ENV_OPTIONS: dict[str, RetiredOption] = {
     "commit_at_line": RetiredOption(
         False, '"Where the car stands: the committed rule and the junction in view"', "cff1f10"
     ),
+    "windows_until_committed": RetiredOption(
+        False, '"Where the car stands: the committed rule and the junction in view"', "RETIRING"
+    ),
 }
 """Env options that frl retired (:mod:`frl.retirement`)."""
 
@@ -319,12 +322,6 @@ class EnvConfig:
     binding crossing car's window on its path and the ego's window on that car's lane
     (:meth:`frl.envs.conflicts.CrossingReader.features`). Read from the grid alone, as the
     gap-acceptance rule reads it; off: no such part."""
-    windows_until_committed: bool = False
-    """With ``window_observation``: once the ego can no longer stop before the stop line
-    (its braking distance v^2 / 2a reaches the distance left, or it is past the line),
-    the windows read "no car coming", as on an empty grid. The gap decision is taken
-    before the line; past it the windows only invite a brake inside the junction, where
-    the plain rule's collisions come from. The grid itself is unchanged."""
 
     def __post_init__(self) -> None:
         _require(
@@ -352,15 +349,6 @@ class EnvConfig:
         _require(
             isinstance(self.window_observation, bool),
             f"window_observation must be true or false, got {self.window_observation!r}",
-        )
-        _require(
-            isinstance(self.windows_until_committed, bool),
-            f"windows_until_committed must be true or false, got {self.windows_until_committed!r}",
-        )
-        _require(
-            self.window_observation or not self.windows_until_committed,
-            "windows_until_committed needs window_observation=true: without the windows "
-            "there is nothing to blank",
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -157,9 +157,6 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         self._vehicles: list[VehicleState] | None = None
         self._grid = OccupancyGrid(config.grid)
         self._crossings = CrossingReader(config) if config.window_observation else None
-        self._no_car_windows = (
-            self._crossings.no_car_features(grid.shape) if self._crossings is not None else None
-        )
         # The commands since SUMO last started, for restore(): see EnvSnapshot.
         self._sumo_seed: int | None = None
         self._speed_commands = array("d")
@@ -254,18 +251,8 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         if self.config.route_observation:
             observation["route"] = self.route()
         if self._crossings is not None:
-            observation["windows"] = self._windows(grid)
+            observation["windows"] = self._crossings.features(grid)
         return observation
-
-    def _windows(self, grid: np.ndarray) -> np.ndarray:
-        """The crossing cars' windows, or "no car coming" once the ego has committed
-        (``windows_until_committed``)."""
-        assert self._crossings is not None and self._no_car_windows is not None
-        if self.config.windows_until_committed and self._crossings.committed(
-            grid, self.stop_line_distance_m
-        ):
-            return self._no_car_windows.copy()
-        return self._crossings.features(grid)
 
     def snapshot(self) -> EnvSnapshot:
         """The env's state now, for :meth:`restore` (a look-ahead, for instance).
