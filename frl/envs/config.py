@@ -207,7 +207,7 @@ RETIRED_ENV_OPTIONS: dict[str, RetiredOption] = {
         False, '"Where the car stands: the committed rule and the junction in view"', "cff1f10"
     ),
     "windows_until_committed": RetiredOption(
-        False, '"Where the car stands: the committed rule and the junction in view"', "RETIRING"
+        False, '"Where the car stands: the committed rule and the junction in view"', "6591107"
     ),
 }
 """Env options that frl retired (:mod:`frl.retirement`)."""
