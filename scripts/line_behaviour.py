@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -88,24 +89,34 @@ def part_offset(agent: DDPG, part: str) -> int:
     raise KeyError(part)
 
 
-def window_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[str, float]:
+def model_states(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> list[tuple[Any, float]]:
+    """Every observation the model met driving ``seeds`` without noise, each with the
+    distance to the stop line (m) it was met at: the states the probes below ask about."""
+    visited = []
+    for seed in seeds:
+        observation, _ = env.reset(seed=seed)
+        while True:
+            visited.append((observation, env.stop_line_distance_m))
+            action = agent.act(observation, explore=False)
+            observation, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                break
+    return visited
+
+
+def window_reading(
+    agent: DDPG, env: IntersectionEnv, visited: list[tuple[Any, float]]
+) -> dict[str, float]:
     """Whether the actor reads the crossing cars' windows: on the states it visited before
     the line with a car coming, its action with the windows as seen against the windows
     blanked (no car coming on either side), where the plain rule brakes and where it goes."""
     rule = make_yardstick("gap_acceptance", env)
     states, rule_brakes = [], []
-    for seed in seeds:
-        observation, _ = env.reset(seed=seed)
-        while True:
-            windows = observation["windows"]
-            car_coming = windows[::FEATURES_PER_SIDE].any()  # each side's first value
-            if env.stop_line_distance_m > 0 and car_coming:
-                states.append(agent.layout.flat(observation))
-                rule_brakes.append(float(np.asarray(rule(observation)).reshape(-1)[0]) < 0)
-            action = agent.act(observation, explore=False)
-            observation, _, terminated, truncated, _ = env.step(action)
-            if terminated or truncated:
-                break
+    for observation, distance in visited:
+        car_coming = observation["windows"][::FEATURES_PER_SIDE].any()  # each side's first
+        if distance > 0 and car_coming:
+            states.append(agent.layout.flat(observation))
+            rule_brakes.append(float(np.asarray(rule(observation)).reshape(-1)[0]) < 0)
     flat = np.stack(states).astype(np.float32)
     brakes = np.array(rule_brakes)
     start = part_offset(agent, "windows")
@@ -125,18 +136,11 @@ def window_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[
     return answers
 
 
-def line_reading(agent: DDPG, env: IntersectionEnv, seeds: list[int]) -> dict[str, float]:
+def line_reading(agent: DDPG, visited: list[tuple[Any, float]]) -> dict[str, float]:
     """The actor's and critic's answers with the distance set before against past the line."""
-    states = []
-    for seed in seeds:
-        observation, _ = env.reset(seed=seed)
-        while True:
-            if abs(env.stop_line_distance_m) <= 10.0:
-                states.append(agent.layout.flat(observation))
-            action = agent.act(observation, explore=False)
-            observation, _, terminated, truncated, _ = env.step(action)
-            if terminated or truncated:
-                break
+    states = [
+        agent.layout.flat(observation) for observation, distance in visited if abs(distance) <= 10.0
+    ]
     flat = np.stack(states).astype(np.float32)
     distance_column = part_offset(agent, "route") + 3  # the route's last entry
     answers = {}
@@ -187,8 +191,11 @@ def main() -> None:
                     f"{counts['other_collisions']}), "
                     f"speed at the line {counts['speed_at_line']:.2f} m/s"
                 )
+            # the model's own drive once more, its states kept for both probes of its networks
+            probed = settings.env.route_observation or settings.env.window_observation
+            visited = model_states(agent, env, seeds) if probed else []
             if settings.env.route_observation:
-                reading = line_reading(agent, env, seeds)
+                reading = line_reading(agent, visited)
                 print(
                     f"{task:<9} model reads the line on {reading['states']} states within 10 m: "
                     f"action {reading['action_before']:+.3f} (5 m before) vs "
@@ -203,7 +210,7 @@ def main() -> None:
                     )
                 )
             if settings.env.window_observation:
-                seen = window_reading(agent, env, seeds)
+                seen = window_reading(agent, env, visited)
                 print(
                     f"{task:<9} model reads the windows on {seen['states']} states before the "
                     f"line with a car coming (the rule brakes on {seen['rule_brakes']}): action "
