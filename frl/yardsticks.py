@@ -32,8 +32,6 @@ def cache_key(name: str, env: EnvConfig, reward: RewardConfig, seeds: Sequence[i
     env_fields.pop("backend")  # libsumo and TraCI run the same simulation
     env_fields.pop("route_observation", None)  # the yardsticks read the grid alone
     env_fields.pop("window_observation", None)  # nor the windows beside it
-    if not env_fields.get("commit_at_line"):
-        env_fields.pop("commit_at_line", None)  # keeps the caches of unshielded envs
     payload = {
         "version": YARDSTICK_VERSION,
         "policy": name,

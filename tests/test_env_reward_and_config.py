@@ -68,10 +68,10 @@ def test_a_retired_reward_option_loads_off_and_is_refused_on():
         RewardConfig.from_dict({"unknown_weight": 1.0})
 
 
-@pytest.mark.parametrize("option", ["windows_until_committed"])
+@pytest.mark.parametrize("option", ["commit_at_line", "windows_until_committed"])
 def test_a_retired_env_option_loads_off_and_is_refused_on(option: str):
-    """Runs saved with a retired env option (the windows blanked once committed) still
-    read with it off; on, one line."""
+    """Runs saved with a retired env option (the shield at the stop line, the windows
+    blanked once committed) still read with it off; on, one line."""
     saved = {**EnvConfig().to_dict(), option: False}
     assert EnvConfig.from_dict(saved) == EnvConfig()
     with pytest.raises(RetiredOptionError, match=rf"^env\.{option}=True was retired: "):
@@ -81,8 +81,7 @@ def test_a_retired_env_option_loads_off_and_is_refused_on(option: str):
 def test_a_retired_reward_override_at_off_is_dropped_from_the_command_line():
     from frl.train import without_retired_overrides
 
-    argv = ["reward.brake_past_line_cost=0", "seed=1", "env.windows_until_committed=false"]
-    argv += ["reward.alpha=0"]
+    argv = ["reward.brake_past_line_cost=0", "seed=1", "env.commit_at_line=false", "reward.alpha=0"]
     assert without_retired_overrides(argv) == ["seed=1", "reward.alpha=0"]
 
 

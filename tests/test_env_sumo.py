@@ -10,7 +10,6 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from frl.envs import ENV_ID, IntersectionEnv, RewardConfig, SumoError
-from frl.envs.intersection import JUNCTION_DEPTH_M
 from frl.envs.reward import REWARD_TERMS
 from frl.envs.sumo_backend import one_port_pick_at_a_time
 
@@ -101,34 +100,6 @@ def test_traci_drives_and_restores_exactly_as_libsumo(make_env):
     restored = make_env(task="random", backend="traci")
     restored.restore(socket.snapshot())
     assert drive(restored, actions[200:]) == drive(fast, actions[200:])
-
-
-def _brake_once_committed(env, seed):
-    """Full throttle until the car can no longer stop before the line, then full brake;
-    the speeds while its nose is within the junction's first metres."""
-    env.reset(seed=seed)
-    speeds = []
-    braking = False
-    for _ in range(env.config.max_episode_steps):
-        braking = braking or env.committed
-        *_, terminated, truncated, info = env.step(FULL_BRAKE if braking else FULL_THROTTLE)
-        if braking and env.stop_line_distance_m > -JUNCTION_DEPTH_M:
-            speeds.append(info["ego_speed"])
-        if terminated or truncated or env.stop_line_distance_m <= -JUNCTION_DEPTH_M:
-            return speeds, env.stop_line_distance_m
-    return speeds, env.stop_line_distance_m
-
-
-def test_commit_at_line_keeps_a_braking_car_going_through_the_junction(make_env):
-    """Shielded, a car that brakes once committed speeds up until it is past the junction;
-    unshielded, the same actions stop it inside."""
-    env = make_env(task="left", commit_at_line=True)
-    shielded, shielded_end = _brake_once_committed(env, 2)
-    env.close()  # libsumo: one simulation per process
-    assert len(shielded) > 1 and shielded == sorted(shielded) and shielded[-1] > shielded[0]
-    assert shielded_end <= -JUNCTION_DEPTH_M
-    plain, plain_end = _brake_once_committed(make_env(task="left"), 2)
-    assert plain[-1] < plain[0] and plain_end > -JUNCTION_DEPTH_M
 
 
 def test_always_braking_agent_never_collides_and_is_truncated(make_env):

@@ -203,6 +203,9 @@ RETIRED_REWARD_OPTIONS: dict[str, RetiredOption] = {
 """Reward options that frl retired (:mod:`frl.retirement`)."""
 
 RETIRED_ENV_OPTIONS: dict[str, RetiredOption] = {
+    "commit_at_line": RetiredOption(
+        False, '"Where the car stands: the committed rule and the junction in view"', "cff1f10"
+    ),
     "windows_until_committed": RetiredOption(
         False, '"Where the car stands: the committed rule and the junction in view"', "6591107"
     ),
@@ -319,13 +322,6 @@ class EnvConfig:
     binding crossing car's window on its path and the ego's window on that car's lane
     (:meth:`frl.envs.conflicts.CrossingReader.features`). Read from the grid alone, as the
     gap-acceptance rule reads it; off: no such part."""
-    commit_at_line: bool = False
-    """A shield against waiting inside the junction: once the ego can no longer stop before
-    the stop line (its braking distance v^2 / 2a reaches the distance left), and until its
-    nose is :data:`~frl.envs.intersection.JUNCTION_DEPTH_M` past the line, it accelerates
-    at full throttle whatever the action, as the committed rule does. Every driver in such
-    an env is shielded, the yardsticks too (the plain rule drives as the committed rule);
-    off (the paper's env): the action is applied."""
 
     def __post_init__(self) -> None:
         _require(
@@ -353,10 +349,6 @@ class EnvConfig:
         _require(
             isinstance(self.window_observation, bool),
             f"window_observation must be true or false, got {self.window_observation!r}",
-        )
-        _require(
-            isinstance(self.commit_at_line, bool),
-            f"commit_at_line must be true or false, got {self.commit_at_line!r}",
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -31,13 +31,6 @@ WINDOW_FEATURES = FEATURES_PER_SIDE * len(SIDES)
 car_leaves, ego_enters, ego_leaves (see :meth:`CrossingReader.features`)."""
 
 
-def cannot_stop_before(speed_mps: float, distance_m: float, deceleration: float) -> bool:
-    """Whether a car at ``speed_mps`` braking at ``deceleration`` (m/s^2) can no longer stop
-    within ``distance_m``: its braking distance v^2 / 2a reaches it (always true at a
-    negative distance). The committed rule's test, and the shield's."""
-    return speed_mps**2 / (2.0 * deceleration) >= distance_m
-
-
 @dataclass(frozen=True)
 class CrossingWindow:
     """One crossing car of the grid: where it comes from and the two windows (seconds)."""
@@ -96,7 +89,8 @@ class CrossingReader:
         """Whether the ego can no longer stop before the stop line: its braking distance
         at full brake, from the speed in its own cell, reaches the distance left (always
         true past the line, where the distance is negative)."""
-        return cannot_stop_before(self.ego_speed(grid), distance_to_line_m, self.acceleration)
+        braking_distance = self.ego_speed(grid) ** 2 / (2.0 * self.acceleration)
+        return braking_distance >= distance_to_line_m
 
     def no_car_features(self, grid_shape: tuple[int, ...]) -> np.ndarray:
         """:meth:`features` of an empty grid of ``grid_shape``: no car coming on either side."""

@@ -13,7 +13,7 @@ import gymnasium as gym
 import numpy as np
 
 from frl.envs.config import TASKS, EnvConfig, RewardConfig
-from frl.envs.conflicts import WINDOW_FEATURES, CrossingReader, cannot_stop_before
+from frl.envs.conflicts import WINDOW_FEATURES, CrossingReader
 from frl.envs.observation import OccupancyGrid
 from frl.envs.reward import RewardSignals, cost_terms, reward_terms
 from frl.envs.scenario import Scenario, build_scenario
@@ -22,10 +22,6 @@ from frl.envs.sumo_backend import BRAKE_LIGHT_BIT, EGO_ID, SumoSimulation, Vehic
 _SEED_BOUND = 2**31 - 1
 ROUTE_DISTANCE_SCALE_M = 10.0
 """The route observation's distance to the stop line is in units of this many metres."""
-JUNCTION_DEPTH_M = 15.0
-"""The junction's first metres past the stop line, where a car that waits is in the cross
-traffic's path (the committed rule never brakes there; docs/studies.md, "Where the car
-stands"): where ``commit_at_line`` keeps the car going."""
 
 
 @dataclass(frozen=True)
@@ -238,15 +234,6 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         paper's grid alone."""
         return self.config.scenario.ego_start_distance - self._travelled
 
-    @property
-    def committed(self) -> bool:
-        """The ego can no longer stop before the stop line and is not yet
-        :data:`JUNCTION_DEPTH_M` past it: where ``commit_at_line`` takes over."""
-        distance = self.stop_line_distance_m
-        return distance > -JUNCTION_DEPTH_M and cannot_stop_before(
-            self._ego_speed, distance, self.config.accel_scale
-        )
-
     def route(self) -> np.ndarray:
         """The ego's route now: the task one-hot and the distance to the stop line in units
         of :data:`ROUTE_DISTANCE_SCALE_M` (what ``route_observation`` adds to the grid)."""
@@ -327,8 +314,6 @@ class IntersectionEnv(gym.Env[Any, np.ndarray]):
         if not math.isfinite(acceleration):
             raise ValueError(f"action must be finite, got {action!r}")
         acceleration = min(max(acceleration, -1.0), 1.0) * self.config.accel_scale
-        if self.config.commit_at_line and self.committed:
-            acceleration = self.config.accel_scale
         scenario = self.config.scenario
         speed = self._ego_speed + acceleration * scenario.step_length
         speed = min(max(speed, 0.0), scenario.speed_limit)
