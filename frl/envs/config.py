@@ -204,7 +204,7 @@ RETIRED_REWARD_OPTIONS: dict[str, RetiredOption] = {
 
 RETIRED_ENV_OPTIONS: dict[str, RetiredOption] = {
     "commit_at_line": RetiredOption(
-        False, '"Where the car stands: the committed rule and the junction in view"', "cff1f10"
+        False, '"Where the car stands: the committed rule and the junction in view"', "376e884"
     ),
     "windows_until_committed": RetiredOption(
         False, '"Where the car stands: the committed rule and the junction in view"', "6591107"
