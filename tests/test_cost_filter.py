@@ -16,6 +16,7 @@ from train_helpers import compose_config
 from frl.agents import DDPG, DDPGConfig
 from frl.agents.cost_filter import CANDIDATES, CostFilteredPolicy
 from frl.train import train
+from frl.train_config import ConfigError, validate
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -30,9 +31,7 @@ def priced(agent: DDPG, monkeypatch, cost, value) -> None:
         assert len(observations) == len(actions) == CANDIDATES + 1
         return np.array(cost if cost_ else value, dtype=np.float64)
 
-    monkeypatch.setattr(
-        agent, "critic_values", lambda o, a, cost=False: critic_values(o, a, cost)
-    )
+    monkeypatch.setattr(agent, "critic_values", lambda o, a, cost=False: critic_values(o, a, cost))
 
 
 def test_an_action_priced_within_the_threshold_is_the_actors_own(monkeypatch):
@@ -109,27 +108,53 @@ def test_an_agent_of_two_actions_is_refused():
 
 @pytest.fixture(scope="module")
 def budget_run(tmp_path_factory):
+    """A tiny run under the default collision budget, tested through its filter too."""
     run_dir = tmp_path_factory.mktemp("filter") / "run"
-    train(compose_config(run_dir, ["eval_episodes=3"]))  # the default collision budget
+    train(compose_config(run_dir, ["eval_episodes=3", "eval_cost_filter=1000000"]))
     return run_dir
+
+
+def test_training_with_a_filter_tests_twice_and_a_price_nothing_exceeds_changes_nothing(
+    budget_run,
+):
+    results = json.loads((budget_run / "results.json").read_text())
+    own, filtered = results["evaluation"], results["evaluation_cost_filtered"]["1e+06"]
+
+    assert "cost_filter" not in own and filtered["cost_filter"] == 1e6
+    # Priced within a million, every action is the actor's: the run's own test again.
+    assert filtered["per_task"] == own["per_task"] and filtered["average"] == own["average"]
+    assert filtered["yardsticks"] == own["yardsticks"]
 
 
 def test_a_run_tested_through_its_filter_keeps_its_own_test(run_cli, budget_run):  # noqa: F811
     before = json.loads((budget_run / "results.json").read_text())
 
-    wide = run_cli("frl.evaluate", str(budget_run), "--cost-filter", "1e6", cwd=budget_run)
     tight = run_cli("frl.evaluate", str(budget_run), "--cost-filter", "0", cwd=budget_run)
 
-    assert wide.returncode == tight.returncode == 0, wide.stderr + tight.stderr
-    assert "the model through its cost filter at 1e+06" in wide.stdout
+    assert tight.returncode == 0, tight.stderr
+    assert "the model through its cost filter at 0" in tight.stdout
     after = json.loads((budget_run / "results.json").read_text())
     assert after["evaluation"] == before["evaluation"]  # the run's own test, untouched
     filtered = after["evaluation_cost_filtered"]
-    assert set(filtered) == {"1e+06", "0"} and filtered["0"]["cost_filter"] == 0.0
-    # Priced within a million, every action is the actor's: the run's own test again.
-    own, wide_test = before["evaluation"], filtered["1e+06"]
-    assert wide_test["per_task"] == own["per_task"] and wide_test["average"] == own["average"]
-    assert wide_test["yardsticks"] == own["yardsticks"]
+    assert filtered["1e+06"] == before["evaluation_cost_filtered"]["1e+06"]
+    assert filtered["0"]["cost_filter"] == 0.0 and filtered["0"]["episodes_per_task"] == 3
+
+
+@pytest.mark.parametrize(
+    ("override", "text"),
+    [
+        ("eval_cost_filter=-1", "eval_cost_filter must be a number >= 0"),
+        ("eval_cost_filter=nan", "eval_cost_filter must be a number >= 0"),
+        (
+            "eval_cost_filter=0.2 agent.collision_budget=null",
+            "eval_cost_filter reads the model's cost critic: set agent.collision_budget",
+        ),
+        ("eval_cost_filter=0.2 eval_episodes=0", "set eval_episodes > 0"),
+    ],
+)
+def test_a_training_config_with_a_bad_filter_is_refused(override, text):
+    with pytest.raises(ConfigError, match=text):
+        validate(compose_config(None, override.split(), tiny=False))
 
 
 @pytest.mark.parametrize(
