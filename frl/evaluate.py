@@ -71,10 +71,8 @@ class PolicyEvaluator:
         reward: RewardConfig,
         model_path: str | Sequence[str] | None = None,
         device: str = "cpu",
-        cost_filter: float | None = None,
     ) -> None:
         self.env = IntersectionEnv(env, reward)
-        self.cost_filter = cost_filter
         paths = [model_path] if isinstance(model_path, str) else list(model_path or [])
         self.agents = []
         if paths:
@@ -101,7 +99,10 @@ class PolicyEvaluator:
         if policy == MODEL:
             if not self.agents:
                 raise ValueError("this evaluator holds no model")
-            drivers = [self._model_driver(agent) for agent in self.agents]
+            drivers = [
+                (functools.partial(agent.act, explore=False), agent.episode_start)
+                for agent in self.agents
+            ]
         else:
             drivers = [(make_yardstick(policy, self.env), None)]
         records = []
@@ -111,14 +112,6 @@ class PolicyEvaluator:
                 if progress is not None:
                     progress(episodes=len(records) / len(drivers))
         return records
-
-    def _model_driver(self, agent: Any) -> tuple[Callable[[Any], Any], Callable[[], None]]:
-        if self.cost_filter is None:
-            return functools.partial(agent.act, explore=False), agent.episode_start
-        from frl.agents.cost_filter import CostFilteredPolicy
-
-        filtered = CostFilteredPolicy(agent, self.cost_filter)
-        return filtered, filtered.episode_start
 
     def close(self) -> None:
         self.env.close()
@@ -132,7 +125,6 @@ def evaluate_policies(
     model_files: dict[str, str | list[str]] | None = None,
     progress: bool = False,
     seeds: Mapping[str, Sequence[int]] | None = None,
-    cost_filter: float | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Test each policy on each task's test seeds; ``{policy: {task: summary}}``.
 
@@ -140,9 +132,7 @@ def evaluate_policies(
     task to its saved model, or models (needed when ``policies`` holds :data:`MODEL`);
     several models of a task each drive every seed and their episodes are pooled.
     ``seeds`` maps each task to the SUMO seeds to drive (``episodes`` of them); the
-    default is the final test's. ``cost_filter``: the model drives through its own cost
-    critic at that price (:class:`frl.agents.cost_filter.CostFilteredPolicy`); the
-    yardsticks as ever. Yardsticks come from the cache when they ran on the
+    default is the final test's. Yardsticks come from the cache when they ran on the
     same environment, reward and seeds before.
     """
     if seeds is None:
@@ -176,7 +166,6 @@ def evaluate_policies(
                 settings.reward,
                 _paths(model_files[task]) if model_files and MODEL in to_run else None,
                 settings.device,
-                cost_filter,
             ),
         )
         for task in tasks
@@ -347,29 +336,14 @@ def evaluate_run(
     progress: bool = False,
     log_tensorboard: bool = True,
     verbose: bool = True,
-    cost_filter: float | None = None,
 ) -> dict[str, Any]:
     """Test the run's final model(s) and its yardsticks; merge ``evaluation`` into
-    results.json; return it. ``episodes`` overrides the run's ``eval_episodes``.
-
-    ``cost_filter``: the model drives through its own cost critic at that price
-    (:class:`frl.agents.cost_filter.CostFilteredPolicy`), and the test goes into
-    results.json's ``evaluation_cost_filtered`` under the price, beside the run's own
-    test, which it leaves as it was (and TensorBoard's ``eval/*`` with it)."""
+    results.json; return it. ``episodes`` overrides the run's ``eval_episodes``."""
     run_dir = Path(run_dir)
     settings = run_settings(run_dir)
     episodes = settings.eval_episodes if episodes is None else int(episodes)
     if episodes <= 0:
         raise ValueError(f"episodes must be positive, got {episodes}")
-    if cost_filter is not None:
-        from frl.agents.cost_filter import check_threshold
-
-        cost_filter = check_threshold(cost_filter)
-        if not settings.agent.costed:
-            raise ValueError(
-                f"--cost-filter: {run_dir}'s model has no cost critic "
-                "(it trained with agent.collision_budget=null)"
-            )
     files = rundir.model_files(run_dir)
     for path in {p for paths in files.values() for p in paths}:
         read_checkpoint(path)  # a missing or corrupt model fails here, not in a worker
@@ -382,9 +356,8 @@ def evaluate_run(
         task: [os.fspath(p) for p in task_paths] for task, task_paths in files.items()
     }
     tested = evaluate_policies(
-        settings, tasks, episodes, [MODEL, *settings.yardsticks], paths, progress,
-        cost_filter=cost_filter,
-    )  # fmt: skip
+        settings, tasks, episodes, [MODEL, *settings.yardsticks], paths, progress
+    )
     evaluation = {
         "episodes_per_task": episodes,
         "exploration": False,
@@ -396,13 +369,6 @@ def evaluate_run(
         **_table(tested.pop(MODEL)),
         "yardsticks": {name: _table(per_task) for name, per_task in tested.items()},
     }
-    if cost_filter is not None:
-        evaluation["cost_filter"] = cost_filter
-        rundir.merge_cost_filtered_evaluation(run_dir, evaluation)
-        if verbose:
-            results = rundir.read_results(run_dir) or {}
-            print(format_table({**results, "evaluation": evaluation}))
-        return evaluation
     rundir.merge_evaluation(run_dir, evaluation)
     if log_tensorboard:
         from frl.federation.tensorboard import TrainingLogger
@@ -539,8 +505,6 @@ def format_table(results: dict[str, Any]) -> str:
         f"{evaluation['episodes_per_task']} test episodes per task, exploration off"
         + (f", traffic {traffic}" if traffic else "")
     )
-    if "cost_filter" in evaluation:
-        header += f"; the model through its cost filter at {evaluation['cost_filter']:g}"
     lines = [header, _format_rows("model", evaluation)]
     for name, table in evaluation.get("yardsticks", {}).items():
         lines.append(_format_rows(f"{_label(name)} (same seeds)", table, per_task=False))
@@ -618,14 +582,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--episodes", type=int, default=None, help="test episodes per task")
     parser.add_argument(
-        "--cost-filter",
-        type=float,
-        metavar="PRICE",
-        help="drive RUN_DIR's model through its own cost critic: where it prices the "
-        "actor's action above PRICE (discounted collisions to come), the best-valued "
-        "acceleration priced at most PRICE; stored beside the run's own test",
-    )
-    parser.add_argument(
         "--round-tests",
         action="store_true",
         help="test the yardsticks (the run's, or --policy) on the seeds of RUN_DIR's "
@@ -638,13 +594,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes is not None and args.episodes <= 0:
         parser.error("--episodes must be positive")
-    if args.cost_filter is not None:
-        if args.policy is not None or args.round_tests or args.run_dir is None:
-            parser.error(
-                "--cost-filter tests a RUN_DIR's model: not with --policy or --round-tests"
-            )
-        if not (args.cost_filter >= 0 and args.cost_filter != float("inf")):
-            parser.error(f"--cost-filter must be a number >= 0, got {args.cost_filter}")
     if args.round_tests:
         if args.run_dir is None:
             parser.error("--round-tests needs a RUN_DIR made with round_test_episodes")
@@ -682,7 +631,6 @@ def main(argv: list[str] | None = None) -> int:
                 episodes=args.episodes,
                 progress=not args.no_progress,
                 log_tensorboard=not args.no_tensorboard,
-                cost_filter=args.cost_filter,
             )
         else:
             evaluate_yardsticks(

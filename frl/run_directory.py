@@ -226,16 +226,6 @@ def merge_evaluation(run_dir: Path, evaluation: dict[str, Any]) -> None:
     write_results(run_dir, results)
 
 
-def merge_cost_filtered_evaluation(run_dir: Path, evaluation: dict[str, Any]) -> None:
-    """Put a test through the model's cost filter into ``results.json``'s
-    ``evaluation_cost_filtered``, keyed by its price, keeping everything else (the run's
-    own ``evaluation`` and other prices' tests)."""
-    results = read_results(run_dir) or {}
-    filtered = results.setdefault("evaluation_cost_filtered", {})
-    filtered[f"{evaluation['cost_filter']:g}"] = evaluation
-    write_results(run_dir, results)
-
-
 def read_saved_config(run_dir: Path) -> dict[str, Any]:
     """``config.yaml`` as plain data; :class:`RunDirectoryError` if ``run_dir`` has none.
 

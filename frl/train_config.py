@@ -17,7 +17,6 @@ starts. Library classes never see a DictConfig.
 from __future__ import annotations
 
 import dataclasses
-import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -193,10 +192,6 @@ class TrainSchema:
     round_test_episodes: int = 0
     """Test episodes per task after every round, on seeds of their own (the per-round test
     curve, ``eval/round/...``); 0: none."""
-    eval_cost_filter: float | None = None
-    """After the final test, the model tested again through its own cost critic at this
-    price (discounted collisions to come; ``frl.evaluate RUN_DIR --cost-filter``), stored
-    beside the run's own test; null: not."""
     yardsticks: list[str] = field(default_factory=lambda: list(DEFAULT_YARDSTICKS))
     """Yardstick policies tested on the same seeds beside the model (frl.policies)."""
     progress: bool = True
@@ -269,16 +264,6 @@ def validate(
             "round_test_episodes must be a non-negative integer (0: no per-round test), "
             f"got {data['round_test_episodes']!r}"
         )
-    cost_filter = data.get("eval_cost_filter")
-    if cost_filter is not None:
-        if not (cost_filter >= 0 and math.isfinite(cost_filter)):
-            raise ConfigError(f"eval_cost_filter must be a number >= 0, got {cost_filter!r}")
-        if agent.get("collision_budget") is None:
-            raise ConfigError(
-                "eval_cost_filter reads the model's cost critic: set agent.collision_budget"
-            )
-        if data["eval_episodes"] == 0:
-            raise ConfigError("eval_cost_filter tests the final model: set eval_episodes > 0")
     yardsticks = tuple(data["yardsticks"])
     unknown_yardsticks = [name for name in yardsticks if name not in YARDSTICKS]
     if unknown_yardsticks:
@@ -366,7 +351,6 @@ def validate(
         stack_updates=stack_updates,
         round_test_episodes=data["round_test_episodes"],
         collision_budget_by_task=budget_by_task,
-        eval_cost_filter=None if cost_filter is None else float(cost_filter),
     )
 
 

@@ -152,11 +152,6 @@ def train(
         began = time.perf_counter()
         results["evaluation"] = evaluate_run(run_dir, progress=progress, verbose=True)
         results["evaluation_wall_time_s"] = time.perf_counter() - began
-        if settings.eval_cost_filter is not None:
-            evaluate_run(run_dir, progress=progress, cost_filter=settings.eval_cost_filter)
-            results["evaluation_cost_filtered"] = rundir.read_results(run_dir)[
-                "evaluation_cost_filtered"
-            ]
     if results["round_tests"] is not None and settings.yardsticks:
         from frl.evaluate import evaluate_round_test_yardsticks
 

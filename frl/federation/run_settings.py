@@ -60,6 +60,3 @@ class TrainSettings:
     collision_budget_by_task: Mapping[str, float] | None = None
     """Each task's vehicles' collision budget (``agent.collision_budget_by_task``); None:
     every vehicle has ``agent.collision_budget``."""
-    eval_cost_filter: float | None = None
-    """After the final test, the model tested again through its own cost critic at this
-    price (``frl.evaluate --cost-filter``); None: not."""
