@@ -5,12 +5,12 @@ networks fitted afterwards on far more of the car's own driving.
         [--cache DIR] [--shares 10,2,1] [--head] [--exploring] [--pooled]
 
 Drives the run's model without noise (as it is tested) on ``--episodes`` episodes per
-task from seeds no test uses, and keeps every state of the approach (from 30 m before the
-stop line to 15 m past it) with the action taken and whether its episode collided. A
-fifth of the episodes is held out; on their states more than ``--lead`` seconds before
-the episode's end it prints, before the line and past it, how well each of these ranks
-the states of episodes that collided above the others (ROC AUC: 0.5 is blind, 1 tells
-them apart):
+task from fixed SUMO seeds (70,000 on), and keeps every state of the approach (from 30 m
+before the stop line to 15 m past it) with the action taken and whether its episode
+collided. A fifth of the episodes is held out; on their states more than ``--lead``
+seconds before the episode's end it prints, before the line and past it, how well each
+of these ranks the states of episodes that collided above the others (ROC AUC: 0.5 is
+blind, 1 tells them apart):
 
 - **the run's cost critic**, Q_c(s, a);
 - **a fresh critic**: the run's critic architecture (vehicles encoder and trunk), newly
@@ -48,8 +48,8 @@ from frl.federation.assembly import evaluation_env
 APPROACH_M = (-15.0, 30.0)
 """The stop-line distances (m; negative: past the line) whose states are kept."""
 SEED_BASE = 70_000
-"""Noise-free episodes' seeds start here, the exploring car's 10,000 above: above every
-run's test seeds (docs/training.md)."""
+"""Noise-free episodes' SUMO seeds start here, the exploring car's 10,000 above: fixed
+seeds, not the run's test seeds (odd seeds drawn from a range of 2**31)."""
 EXPLORING_SEED_OFFSET = 10_000
 FIT_LR = 3e-4
 
