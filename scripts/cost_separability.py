@@ -31,6 +31,7 @@ blind, 1 tells them apart):
 from __future__ import annotations
 
 import argparse
+import io
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -44,6 +45,7 @@ from frl.agents.networks import CostHead, Critic, build_cost_head, build_network
 from frl.envs import IntersectionEnv
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
+from frl.fileio import write_bytes_atomic
 
 APPROACH_M = (-15.0, 30.0)
 """The stop-line distances (m; negative: past the line) whose states are kept."""
@@ -75,7 +77,7 @@ def drive(agent: DDPG, env: IntersectionEnv, seeds: range, exploring: bool) -> D
             action = agent.scale.from_unit(agent.explorer.noisy(unit) if exploring else unit)
             distance = env.stop_line_distance_m
             if APPROACH_M[0] < distance <= APPROACH_M[1]:
-                columns["obs"].append(flat.astype(np.float16))
+                columns["obs"].append(flat.astype(np.float16))  # half of float32's memory
                 columns["actions"].append(np.asarray(action, np.float32).reshape(-1))
                 columns["distance"].append(distance)
                 kept.append(step)
@@ -140,24 +142,29 @@ class Scorer:
         )  # fmt: skip
         self.rng = np.random.default_rng(seed)
 
-    def logits(self, data: Data, rows: np.ndarray, features: torch.Tensor | None) -> torch.Tensor:
+    def inputs(self, data: Data, rows: np.ndarray) -> torch.Tensor:
+        """What the network reads for ``rows``: the frozen features for a head, else the
+        actions in [-1, 1] (the observations are read batch by batch)."""
         if self.head:
-            assert features is not None
-            return self.network(features)
-        return self.network(
-            as_input(self.agent, data["obs"][rows]), unit_actions(self.agent, data)[rows]
-        )
+            return reward_critic_hidden(self.agent, data, rows)
+        return unit_actions(self.agent, data)[rows]
+
+    def logits(self, data: Data, rows: np.ndarray, inputs: torch.Tensor) -> torch.Tensor:
+        """The network on ``rows``, whose :meth:`inputs` are ``inputs``."""
+        if self.head:
+            return self.network(inputs)
+        return self.network(as_input(self.agent, data["obs"][rows]), inputs)
 
     def fit(self, data: Data, rows: np.ndarray, updates: int) -> Scorer:
         """Logistic loss on ``rows``, half of each batch of 256 from collided episodes."""
-        features = reward_critic_hidden(self.agent, data, rows) if self.head else None
+        inputs = self.inputs(data, rows)
         labels = torch.from_numpy(data["collided"][rows].astype(np.float32))
         collided = np.flatnonzero(data["collided"][rows])
         others = np.flatnonzero(~data["collided"][rows])
         optimizer = torch.optim.Adam(self.network.parameters(), lr=FIT_LR)
         for _ in range(updates):
             batch = np.concatenate([self.rng.choice(collided, 128), self.rng.choice(others, 128)])
-            logits = self.logits(data, rows[batch], None if features is None else features[batch])
+            logits = self.logits(data, rows[batch], inputs[batch])
             loss = torch.nn.functional.binary_cross_entropy_with_logits(logits, labels[batch])
             optimizer.zero_grad()
             loss.backward()
@@ -166,11 +173,9 @@ class Scorer:
 
     def scores(self, data: Data, rows: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            features = reward_critic_hidden(self.agent, data, rows) if self.head else None
+            inputs = self.inputs(data, rows)
             parts = [
-                self.logits(
-                    data, rows[s : s + 4096], None if features is None else features[s : s + 4096]
-                )
+                self.logits(data, rows[s : s + 4096], inputs[s : s + 4096])
                 for s in range(0, len(rows), 4096)
             ]
         return torch.cat(parts).numpy()
@@ -200,7 +205,9 @@ def driven(
     data = drive(agent, env, seeds, exploring)
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(cache, **data)
+        archive = io.BytesIO()
+        np.savez(archive, **data)
+        write_bytes_atomic(cache, archive.getvalue())
     return data
 
 
@@ -273,13 +280,13 @@ def main() -> None:
                 continue
             scorer = Scorer(agent, head=False).fit(data, rows, args.updates)
             print(f"  {name}: {stage_aucs(scorer.scores(data, test), data, test)}")
-        if args.head:
+        if args.head and both_kinds(data, train):
             scorer = Scorer(agent, head=True).fit(data, train, args.updates)
             print(
                 "  a head on the run's frozen critic features: "
                 + stage_aucs(scorer.scores(data, test), data, test)
             )
-        if exploring is not None:
+        if exploring is not None and both_kinds(exploring, np.arange(len(exploring["obs"]))):
             crashes = len(np.unique(exploring["episode"][exploring["collided"]]))
             everything = np.arange(len(exploring["obs"]))
             for head in (False, True):
