@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -60,9 +61,11 @@ def tiny_spec(index: int, task: str, seed: int = 0) -> ClientSpec:
 
 
 def load_script(name: str) -> ModuleType:
-    """``scripts/NAME.py`` as a module (the scripts are no package)."""
+    """``scripts/NAME.py`` as a module (the scripts are no package), registered in
+    ``sys.modules`` as dataclasses need to look their module up."""
     spec = importlib.util.spec_from_file_location(name, SCRIPTS_DIR / f"{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
