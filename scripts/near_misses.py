@@ -1,9 +1,10 @@
 """How many near misses a driver has beside its collisions: whether a near miss would add
 much to what a collision budget's cost critic learns from.
 
-    python scripts/near_misses.py POLICY [--episodes 100]
+    python scripts/near_misses.py POLICY_OR_RUN_DIR [--episodes 100]
 
-Drives a yardstick (``frl.policies``) on fixed SUMO seeds (90,000 on, even) for each task
+Drives a yardstick (``frl.policies``), or a run's model without noise, on fixed SUMO
+seeds (90,000 on, even) for each task
 and, at every step without a collision, finds the time to overlap: the first moment
 within the horizon at which the ego's rectangle and a human's (5 m x 1.8 m behind the
 front bumper) would overlap with both driving on at their present velocities, compared
@@ -16,12 +17,17 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 import numpy as np
 
-from frl.envs import TASKS, EnvConfig, IntersectionEnv
+from frl import run_directory as rundir
+from frl.agents import DDPG
+from frl.envs import TASKS, IntersectionEnv
 from frl.envs.sumo_backend import EGO_ID
-from frl.policies import YARDSTICKS, make_yardstick
+from frl.evaluate import run_settings
+from frl.federation.assembly import evaluation_env
+from frl.policies import YARDSTICKS, Policy, make_yardstick
 
 HORIZONS_S = (0.5, 1.0, 1.5)
 LENGTH_M, WIDTH_M = 5.0, 1.8
@@ -63,15 +69,33 @@ def time_to_overlap(vehicles, horizon_s: float) -> float:  # type: ignore[no-unt
     return float(times[hits[0]]) if hits.size else math.inf
 
 
+def driver(name: str, task: str) -> tuple[IntersectionEnv, Policy]:
+    """The env of ``task`` and the yardstick ``name``, or the model of the run in the
+    directory ``name`` (its own scenario), acting without noise."""
+    if name in YARDSTICKS:
+        env = IntersectionEnv()
+        return env, make_yardstick(name, env)
+    run_dir = Path(name)
+    settings = run_settings(run_dir)
+    env = IntersectionEnv(evaluation_env(settings, task), settings.reward)
+    model = rundir.model_files(run_dir)[task][0]
+    agent = DDPG.from_checkpoint(model, env.observation_space, env.action_space)
+    return env, lambda observation: agent.act(observation, explore=False)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("policy", choices=YARDSTICKS)
+    parser.add_argument("policy", help=f"one of {', '.join(YARDSTICKS)}, or a run directory")
     parser.add_argument("--episodes", type=int, default=100)
     args = parser.parse_args()
-    env = IntersectionEnv(EnvConfig())
-    policy = make_yardstick(args.policy, env)
-    try:
-        for task in TASKS:
+    if args.policy not in YARDSTICKS:
+        try:
+            rundir.model_files(Path(args.policy))
+        except FileNotFoundError as error:
+            parser.error(str(error))
+    for task in TASKS:
+        env, policy = driver(args.policy, task)
+        try:
             collisions = 0
             near = dict.fromkeys(HORIZONS_S, 0)
             near_clean = dict.fromkeys(HORIZONS_S, 0)
@@ -93,8 +117,8 @@ def main() -> None:
             )
             tally = f"collisions {collisions}/{args.episodes}; near misses {counts}"
             print(f"{args.policy} {task}: {tally}")
-    finally:
-        env.close()
+        finally:
+            env.close()
 
 
 if __name__ == "__main__":
