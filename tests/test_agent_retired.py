@@ -47,6 +47,7 @@ ON = {
     "branches": {"probability": 0.1, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10},
     "self_imitation": 1.0,
     "reward_target": "episode",
+    "bang_bang": True,
 }
 CONTEXT = {
     "guide_filter": {"guide": "gap_acceptance", "guide_weight": 1.0},

@@ -177,21 +177,10 @@ def encode_one(encoder: VehicleSetEncoder, flat: np.ndarray, device: torch.devic
     return torch.from_numpy(np.concatenate(pooled)[None])
 
 
-def bang_bang(action: np.ndarray) -> np.ndarray:
-    """Each of the actor's actions (in [-1, 1]) as +1 above 0 and -1 elsewhere."""
-    return np.where(np.asarray(action) > 0, 1.0, -1.0)
-
-
-def bang_bang_tensor(action: Tensor) -> Tensor:
-    """:func:`bang_bang` on a tensor, in its dtype (the TD target's next actions)."""
-    return (action > 0).to(action.dtype) * 2 - 1
-
-
 class ActionScale:
-    """Between a Box action space's bounds and the actor's [-1, 1]; with ``bang_bang``,
-    every action executed at a bound by its sign (``DDPGConfig.bang_bang``)."""
+    """Between a Box action space's bounds and the actor's [-1, 1]."""
 
-    def __init__(self, space: spaces.Box, bang_bang: bool = False) -> None:
+    def __init__(self, space: spaces.Box) -> None:
         if not isinstance(space, spaces.Box):
             raise TypeError(f"action_space must be a gymnasium Box, got {space}")
         if not (np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))):
@@ -199,7 +188,6 @@ class ActionScale:
         self.shape: tuple[int, ...] = tuple(space.shape)
         self.low = space.low.astype(np.float64).reshape(-1)
         self.high = space.high.astype(np.float64).reshape(-1)
-        self.bang_bang = bang_bang
 
     def to_unit(self, action: Any, batch: bool = False) -> np.ndarray:
         """An env action as the actor's, clipped to [-1, 1] (float64, flat); with ``batch``
@@ -210,8 +198,6 @@ class ActionScale:
 
     def from_unit(self, action: np.ndarray) -> np.ndarray:
         """The actor's action in the env's units, float32 within the bounds."""
-        if self.bang_bang:
-            action = bang_bang(action)
         env_action = self.low + (action + 1.0) * 0.5 * (self.high - self.low)
         low, high = self.low.astype(np.float32), self.high.astype(np.float32)
         return np.clip(env_action.astype(np.float32), low, high).reshape(self.shape)

@@ -86,7 +86,6 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "encoder": ENCODERS,
     "precision": PRECISIONS,
     "cuda_graph": (True, False),
-    "bang_bang": (True, False),
     "sparse.input": (True, False, "auto"),
     "critic.kind": CRITICS,
     "cost_critic": COST_CRITICS,
@@ -284,12 +283,6 @@ class DDPGConfig:
     left towards the bound it points to, and reversed past it. Through a saturated tanh
     almost no gradient passes, so an actor stuck at full throttle cannot learn to brake
     where its critic has learned that it should."""
-    bang_bang: bool = False
-    """Execute every action as full throttle or full brake by its sign (+1 above 0, else
-    -1, in the actor's units), as the rules drive: exploring, testing, warm-up and teacher
-    alike. The buffer stores the executed action, and the TD target reads the target
-    actor's executed one, so the critic learns the two actions that are ever taken and the
-    actor's gradient points to the better. False: the actor's action as it is."""
     guide: str = "none"
     """A teacher whose action is stored with every transition: ``none``;
     ``gap_acceptance``, frl's rule-based driver on the grid

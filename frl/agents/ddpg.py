@@ -20,7 +20,7 @@ import torch
 from gymnasium import spaces
 from torch import Tensor
 
-from frl.agents.acting import Acting, ActionScale, bang_bang_tensor
+from frl.agents.acting import Acting, ActionScale
 from frl.agents.checkpoint import Checkpointing
 from frl.agents.config import DDPGConfig
 from frl.agents.constraint import CollisionConstraint
@@ -88,8 +88,8 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
     ) -> None:  # fmt: skip
         self.layout = ObservationLayout(observation_space)
         """How observations become the flat vectors the networks and the buffer hold."""
+        self.scale = ActionScale(action_space)
         self.config = cfg = config if config is not None else DDPGConfig()
-        self.scale = ActionScale(action_space, cfg.bang_bang)
         self.seed, self.device = int(seed), torch.device(device)
         self.obs_shape, self.obs_dim = self.layout.shape, self.layout.num_features
         self.action_shape, self.action_dim = self.scale.shape, self.scale.low.size
@@ -290,8 +290,6 @@ class DDPG(Acting, FederatedAgent, Checkpointing):
         nets = self.networks
         with self._autocast(), torch.no_grad():
             next_actions = nets.actor_target(batch.next_obs)
-            if self.config.bang_bang:  # the action the target actor would execute
-                next_actions = bang_bang_tensor(next_actions)
             next_q, next_hidden = nets.critic_target.values_and_hidden(batch.next_obs, next_actions)
         with self._autocast():
             q, hidden = nets.critic.values_and_hidden(batch.obs, batch.actions)

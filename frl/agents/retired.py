@@ -28,6 +28,8 @@ _SELF_IMITATION = '"Self-imitation: its own driving that beat its critic"'
 _SELF_IMITATION_COMMIT = "bc5ce4d"
 _RETURNS = '"The reward critic on what each episode returned"'
 _RETURNS_COMMIT = "fd12ff8"
+_BANG_BANG = '"Trained bang-bang: every action at full throttle or full brake"'
+_BANG_BANG_COMMIT = "a873803"
 _BRANCHES_OFF = {"probability": 0.0, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10}
 """The ``agent.branches`` group as every config and checkpoint wrote it with branches off."""
 
@@ -56,6 +58,7 @@ RETIRED_OPTIONS: dict[str, RetiredOption] = {
     "branches": RetiredOption(_BRANCHES_OFF, _BRANCHES, _BRANCHES_COMMIT),
     "self_imitation": RetiredOption(0.0, _SELF_IMITATION, _SELF_IMITATION_COMMIT),
     "reward_target": RetiredOption("n_step", _RETURNS, _RETURNS_COMMIT),
+    "bang_bang": RetiredOption(False, _BANG_BANG, _BANG_BANG_COMMIT),
 }
 """Each retired key, with its off value and its study."""
 
