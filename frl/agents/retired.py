@@ -29,7 +29,7 @@ _SELF_IMITATION_COMMIT = "bc5ce4d"
 _RETURNS = '"The reward critic on what each episode returned"'
 _RETURNS_COMMIT = "fd12ff8"
 _BANG_BANG = '"Trained bang-bang: every action at full throttle or full brake"'
-_BANG_BANG_COMMIT = "a873803"
+_BANG_BANG_COMMIT = "3a3a810"
 _BRANCHES_OFF = {"probability": 0.0, "before_line_m": 10.0, "past_line_m": 5.0, "hold_steps": 10}
 """The ``agent.branches`` group as every config and checkpoint wrote it with branches off."""
 
