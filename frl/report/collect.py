@@ -29,12 +29,17 @@ FIGURES: tuple[str, ...] = ("fig3", "fig4", "fig5", "fig6")
 AGENT_PANELS: dict[str, str] = {
     "data-budget": "python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4 --runs-dir "
     "outputs/repro/runs/data-budget --data-dir outputs/repro/data/data-budget -- budget=data "
-    "agent.collision_budget=null",
+    "agent.collision_budget=null agent.critic_lr=0.0001",
     "collision-budget": "python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4 --runs-dir "
     "outputs/repro/runs/collision-budget --data-dir outputs/repro/data/collision-budget -- "
-    "budget=data agent.precision=float32 agent.cost_critic=separate agent.cost_target=n_step",
+    "budget=data agent.precision=float32 agent.cost_critic=separate agent.cost_target=n_step "
+    "agent.critic_lr=0.0001",
     "costs-to-go": "python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4 --runs-dir "
-    "outputs/repro/runs/costs-to-go --data-dir outputs/repro/data/costs-to-go -- budget=data",
+    "outputs/repro/runs/costs-to-go --data-dir outputs/repro/data/costs-to-go -- budget=data "
+    "agent.critic_lr=0.0001",
+    "faster-critics": "python -m frl.reproduce --figures fig4 --seeds 0,1,2,3,4 --runs-dir "
+    "outputs/repro/runs/faster-critics --data-dir outputs/repro/data/faster-critics -- "
+    "budget=data",
     "guided": "python -m frl.reproduce --figures fig4-guided",
     "paper-agent": "python -m frl.reproduce --figures fig4 --runs-dir outputs/repro/runs/"
     "paper-agent --data-dir outputs/repro/data/paper-agent -- agent=ddpg-paper",
@@ -44,11 +49,12 @@ and 5 trained on another agent or budget, and the command that makes each:
 ``data-budget`` (the default agent at the main command's budget, 80,000 steps and an
 update every 8, where the editions train the paper's 10,000 and an update a step, without
 the collision budget), ``collision-budget`` (the same with it, as it was first measured:
-float32, a separate cost critic on n-step targets), ``costs-to-go`` (the main command's
-agent: the cost head on each episode's costs to go, in the CPU's precision),
-``guided`` (``agent=ddpg-guided``, which learns from the gap-acceptance rule) and
-``paper-agent`` (the paper's Table II agent). Each is reported as a panel of its own,
-never mixed with the editions' runs."""
+float32, a separate cost critic on n-step targets), ``costs-to-go`` (the cost head on
+each episode's costs to go, in the CPU's precision), ``faster-critics`` (the main
+command's agent: the same with its critics at 3e-4), ``guided`` (``agent=ddpg-guided``,
+which learns from the gap-acceptance rule) and ``paper-agent`` (the paper's Table II
+agent). The first three ran with the critics at Table II's 1e-4, which their commands
+keep. Each is reported as a panel of its own, never mixed with the editions' runs."""
 
 
 @dataclass

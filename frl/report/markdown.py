@@ -111,7 +111,7 @@ _Discussion not written yet._
 
 {runs-collision-budget}
 
-## Figs. 4 and 5 at the default: the cost critic on each episode's costs to go
+## Figs. 4 and 5 with the cost critic on each episode's costs to go
 
 {claims-costs-to-go}
 
@@ -122,6 +122,18 @@ _Discussion not written yet._
 {fig5-costs-to-go}
 
 {runs-costs-to-go}
+
+## Figs. 4 and 5 at the default: the critics at three times the learning rate
+
+{claims-faster-critics}
+
+{fig4-faster-critics}
+
+{fig4-tested-faster-critics}
+
+{fig5-faster-critics}
+
+{runs-faster-critics}
 
 ## Figs. 4 and 5 with the guided agent
 
