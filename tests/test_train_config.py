@@ -65,9 +65,8 @@ def test_the_main_command_trains_eight_steps_per_update_and_the_editions_one():
         3e-4, 1e-4, 1e-4,
     )  # fmt: skip
     assert settings.agent.actor_lr == paper.agent.actor_lr == 1e-4
-    assert paper.agent == full(
-        ["agent.train_freq=1", "agent.collision_budget=null", "agent.critic_lr=0.0001"]
-    ).agent
+    as_paper = ["agent.train_freq=1", "agent.collision_budget=null", "agent.critic_lr=0.0001"]
+    assert paper.agent == full(as_paper).agent
     paper_line = schedule_line(paper.plan, paper.agent)
     assert "5 rounds of 2,000 updates per vehicle (2,000 environment steps" in paper_line
     assert "10,000 environment steps and 9,001 updates per vehicle" in paper_line
