@@ -45,7 +45,7 @@ from frl.episodes import run_episode
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
-from frl.policies import Policy, make_yardstick
+from frl.policies import Policy, load_model, make_yardstick
 
 RULES = {"rule": "gap_acceptance", "committed": "committed_gap_acceptance"}
 """``--against``: the yardstick each collision is read against."""
@@ -134,7 +134,7 @@ def anatomy_of(
     for task in [task for task in tasks if task in files]:
         env = IntersectionEnv(evaluation_env(settings, task), settings.reward)
         try:
-            agent = DDPG.from_checkpoint(files[task][0], env.observation_space, env.action_space)
+            agent = load_model(files[task][0], env)
             rule = make_yardstick(RULES[against], env)
             anatomy = TaskAnatomy()
             for seed in evaluation_seeds(settings.seed, task, episodes):

@@ -36,6 +36,7 @@ from frl.envs import TASKS, IntersectionEnv
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
+from frl.policies import load_model
 
 BINS = (0.0, 0.01, 0.03, 0.1, 0.3, np.inf)
 """Edges of the prediction bins (the last open above)."""
@@ -85,7 +86,7 @@ def calibrate(run_dir: Path, tasks: list[str], episodes: int) -> dict[str, Calib
     for task in [task for task in tasks if task in files]:
         env = IntersectionEnv(evaluation_env(settings, task), settings.reward)
         try:
-            agent = DDPG.from_checkpoint(files[task][0], env.observation_space, env.action_space)
+            agent = load_model(files[task][0], env)
             found[task] = Calibration()
             for seed in evaluation_seeds(settings.seed, task, episodes):
                 replay(env, agent, task, seed, found[task])

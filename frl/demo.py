@@ -22,7 +22,7 @@ from frl.cli import OneLineParser, seed_value
 from frl.envs import TASKS, TRAFFIC_PRESETS, EnvConfig, IntersectionEnv, traffic_preset
 from frl.episodes import EpisodeRecord, run_episode, summarize
 from frl.federation.assembly import evaluation_env
-from frl.policies import GapAcceptancePolicy, install_guide, make_yardstick
+from frl.policies import GapAcceptancePolicy, load_model, make_yardstick
 from frl.recording import Driver, film_episode, record_episode, side_by_side, write_gif
 
 GIF_TASK = "left"
@@ -142,11 +142,7 @@ class RunModel:
 
 def _model_policy(path: str, env: IntersectionEnv) -> Any:
     """The model at ``path`` on ``env``'s spaces, acting without exploration."""
-    from frl.agents import DDPG
-
-    agent = DDPG.from_checkpoint(path, env.observation_space, env.action_space)
-    install_guide(agent, env.config)
-    return functools.partial(agent.act, explore=False)
+    return functools.partial(load_model(path, env).act, explore=False)
 
 
 def _test_records(model: RunModel, task: str, episodes: int | None) -> list[list[EpisodeRecord]]:

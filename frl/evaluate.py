@@ -50,7 +50,7 @@ from frl.policies import (
     DEFAULT_YARDSTICKS,
     YARDSTICK_LABELS,
     YARDSTICKS,
-    install_guide,
+    load_model,
     make_yardstick,
 )
 
@@ -75,17 +75,7 @@ class PolicyEvaluator:
         self.env = IntersectionEnv(env, reward)
         paths = [model_path] if isinstance(model_path, str) else list(model_path or [])
         self.agents = []
-        if paths:
-            from frl.agents import DDPG
-
-            self.agents = [
-                DDPG.from_checkpoint(
-                    path, self.env.observation_space, self.env.action_space, device=device
-                )
-                for path in paths
-            ]
-            for agent in self.agents:  # a residual actor drives through its teacher
-                install_guide(agent, self.env.config)
+        self.agents = [load_model(path, self.env, device) for path in paths]
 
     def run(
         self,

@@ -22,11 +22,11 @@ from typing import Any
 import numpy as np
 
 from frl import run_directory as rundir
-from frl.agents import DDPG
 from frl.envs import IntersectionEnv
 from frl.envs.config import traffic_name
 from frl.evaluate import evaluate_policy, run_settings
 from frl.federation.assembly import evaluation_env
+from frl.policies import load_model
 
 
 def bang_bang(actor: Callable[[Any], np.ndarray], threshold: float) -> Callable[[Any], np.ndarray]:
@@ -62,7 +62,7 @@ def main() -> None:
         parser.error(f"{args.run_dir}: one model per task; this probe reads one model")
     task, paths = next(iter(files.items()))
     env = IntersectionEnv(evaluation_env(settings, task), settings.reward)
-    agent = DDPG.from_checkpoint(paths[0], env.observation_space, env.action_space)
+    agent = load_model(paths[0], env)
     env.close()
     own = json.loads((args.run_dir / rundir.RESULTS_FILE).read_text())["evaluation"]
     print(f"{args.run_dir.name}: the run's own test {summary(own['average'])}")

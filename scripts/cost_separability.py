@@ -46,6 +46,7 @@ from frl.envs import IntersectionEnv
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
 from frl.fileio import write_bytes_atomic
+from frl.policies import load_model
 
 APPROACH_M = (-15.0, 30.0)
 """The stop-line distances (m; negative: past the line) whose states are kept."""
@@ -244,7 +245,7 @@ def main() -> None:
     for task in tasks:
         env = IntersectionEnv(replace(evaluation_env(settings, task), task=task))
         try:
-            agent = DDPG.from_checkpoint(files[task][0], env.observation_space, env.action_space)
+            agent = load_model(files[task][0], env)
             seeds = range(SEED_BASE, SEED_BASE + args.episodes)
             cache = args.cache / f"{task}-{args.episodes}.npz" if args.cache else None
             data = driven(agent, env, seeds, False, cache)

@@ -36,7 +36,7 @@ from frl.envs.conflicts import CrossingReader
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
-from frl.policies import make_yardstick
+from frl.policies import load_model, make_yardstick
 
 BRAKE, GO = -1.0, 1.0
 
@@ -150,7 +150,7 @@ def main() -> None:
     for task, paths in files.items():
         env = IntersectionEnv(replace(evaluation_env(settings, task), task=task))
         try:
-            agent = DDPG.from_checkpoint(paths[0], env.observation_space, env.action_space)
+            agent = load_model(paths[0], env)
             multiplier = prices.get(task) if agent.constraint is not None else None
             seeds = evaluation_seeds(settings.seed, task, args.episodes)
             groups = read_task(env, agent, seeds, multiplier)

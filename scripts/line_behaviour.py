@@ -41,7 +41,7 @@ from frl.envs.intersection import ROUTE_DISTANCE_SCALE_M
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
 from frl.federation.plan import evaluation_seeds
-from frl.policies import install_guide, make_yardstick
+from frl.policies import load_model, make_yardstick
 
 JUNCTION_DEPTH_M = 15.0
 """A brake counts as one past the stop line while the nose is past it by less than this
@@ -175,8 +175,7 @@ def main() -> None:
         seeds = evaluation_seeds(settings.seed, task, args.episodes)
         env = IntersectionEnv(replace(evaluation_env(settings, task), task=task))
         try:
-            agent = DDPG.from_checkpoint(paths[0], env.observation_space, env.action_space)
-            install_guide(agent, env.config)
+            agent = load_model(paths[0], env)
             drivers = {
                 "model": lambda o, agent=agent: agent.act(o, explore=False),
                 "gap acceptance": make_yardstick("gap_acceptance", env),

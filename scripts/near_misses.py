@@ -22,12 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from frl import run_directory as rundir
-from frl.agents import DDPG
 from frl.envs import TASKS, IntersectionEnv
 from frl.envs.sumo_backend import EGO_ID
 from frl.evaluate import run_settings
 from frl.federation.assembly import evaluation_env
-from frl.policies import YARDSTICKS, Policy, make_yardstick
+from frl.policies import YARDSTICKS, Policy, load_model, make_yardstick
 
 HORIZONS_S = (0.5, 1.0, 1.5)
 LENGTH_M, WIDTH_M = 5.0, 1.8
@@ -78,8 +77,7 @@ def driver(name: str, task: str) -> tuple[IntersectionEnv, Policy]:
     run_dir = Path(name)
     settings = run_settings(run_dir)
     env = IntersectionEnv(evaluation_env(settings, task), settings.reward)
-    model = rundir.model_files(run_dir)[task][0]
-    agent = DDPG.from_checkpoint(model, env.observation_space, env.action_space)
+    agent = load_model(rundir.model_files(run_dir)[task][0], env)
     return env, lambda observation: agent.act(observation, explore=False)
 
 

@@ -209,3 +209,30 @@ def test_a_default_agent_draws_its_streams_as_before_the_teachers_wheel():
     assert agent.buffer.rng.random(3).tolist() == np.random.default_rng(buffer).random(3).tolist()
     wheel = np.random.SeedSequence(11).spawn(5)[4]
     assert agent.explorer.wheel_rng.random() == np.random.default_rng(wheel).random()
+
+
+def test_a_loaded_model_drives_as_saved_and_a_guided_one_gets_its_teacher(tmp_path: Path):
+    from frl.envs import IntersectionEnv
+    from frl.policies import GapAcceptancePolicy, load_model
+
+    env = IntersectionEnv()
+    try:
+        grid, accel = env.observation_space, env.action_space
+        for config, teacher in (
+            (guided(), GapAcceptancePolicy),
+            (DDPGConfig(hidden_sizes=(16,)), None),
+        ):
+            agent = DDPG(grid, accel, config, seed=3)
+            agent.save(tmp_path / "model.pt")
+            loaded = load_model(tmp_path / "model.pt", env)
+            observation = np.random.default_rng(0).random(grid.shape).astype(np.float32)
+            assert np.array_equal(
+                loaded.act(observation, explore=False), agent.act(observation, explore=False)
+            )
+            assert not loaded.needs_guide
+            if teacher is None:
+                assert loaded.teacher is None
+            else:
+                assert isinstance(loaded.teacher.driver, teacher)
+    finally:
+        env.close()

@@ -17,6 +17,7 @@ how far it is from driving blind and from the best any policy could do.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 
 import numpy as np
@@ -105,6 +106,15 @@ def install_guide(agent: DDPG, env: EnvConfig) -> None:
         agent.set_guide(TEACHERS[agent.config.guide](env))
 
 
+def load_model(path: str | os.PathLike[str], env: IntersectionEnv, device: str = "cpu") -> DDPG:
+    """The model saved at ``path`` on ``env``'s spaces, a guided one with its teacher
+    installed so that it can go on learning: ``load_model(path, env).act(observation,
+    explore=False)`` drives it as it is tested."""
+    agent = DDPG.from_checkpoint(path, env.observation_space, env.action_space, device=device)
+    install_guide(agent, env.config)
+    return agent
+
+
 __all__ = [
     "DEFAULT_YARDSTICKS",
     "TEACHERS",
@@ -121,5 +131,6 @@ __all__ = [
     "check_teacher",
     "full_throttle",
     "install_guide",
+    "load_model",
     "make_yardstick",
 ]
