@@ -74,7 +74,6 @@ class PolicyEvaluator:
     ) -> None:
         self.env = IntersectionEnv(env, reward)
         paths = [model_path] if isinstance(model_path, str) else list(model_path or [])
-        self.agents = []
         self.agents = [load_model(path, self.env, device) for path in paths]
 
     def run(
