@@ -1,0 +1,60 @@
+"""Traffic that changes as a vehicle trains (``federation.round_arrival_period_factors``).
+
+Each entry scales the humans' mean arrival period in one round of a vehicle's own training
+(0.6: a car every 0.6 times as long, busier); a shorter list holds its last entry for the
+rounds after it. A vehicle takes the traffic of the round an episode starts in, so an
+episode that runs across a round's end finishes in the traffic it began in. Tests always
+run on the run's own traffic.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+from frl.envs import EnvConfig
+
+
+def round_index(env_steps: int, round_steps: int) -> int:
+    """The 0-based round of a vehicle's own training that ``env_steps`` lies in."""
+    return env_steps // round_steps
+
+
+def scheduled_env(
+    env: EnvConfig, factors: Sequence[float], round_steps: int, env_steps: int
+) -> EnvConfig:
+    """The environment a vehicle whose own traffic is ``env`` drives in an episode that
+    starts after ``env_steps`` steps of its training; ``env`` itself without a schedule."""
+    if not factors:
+        return env
+    factor = factors[min(round_index(env_steps, round_steps), len(factors) - 1)]
+    return with_period_factor(env, factor)
+
+
+def with_period_factor(env: EnvConfig, factor: float) -> EnvConfig:
+    """``env`` with its humans' mean arrival period times ``factor`` (``env`` at 1)."""
+    if factor == 1.0:
+        return env
+    scenario = env.scenario
+    period = scenario.human_arrival_period_steps * factor
+    return dataclasses.replace(
+        env, scenario=dataclasses.replace(scenario, human_arrival_period_steps=period)
+    )
+
+
+def describe_schedule(factors: Sequence[float], num_rounds: int) -> str:
+    """The schedule in words for the training log, e.g. ``rounds 1-3 at 0.6 times the
+    humans' arrival period, rounds 4-5 at the run's``."""
+    per_round = [factors[min(r, len(factors) - 1)] for r in range(num_rounds)]
+    spans: list[tuple[int, int, float]] = []
+    for number, factor in enumerate(per_round, start=1):
+        if spans and spans[-1][2] == factor:
+            spans[-1] = (spans[-1][0], number, factor)
+        else:
+            spans.append((number, number, factor))
+    parts = []
+    for first, last, factor in spans:
+        rounds = f"round {first}" if first == last else f"rounds {first}-{last}"
+        at = "the run's" if factor == 1.0 else f"{factor:g} times the humans' arrival period"
+        parts.append(f"{rounds} at {at}")
+    return ", ".join(parts)
