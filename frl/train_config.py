@@ -314,7 +314,7 @@ def validate(
         raise ConfigError(str(error)) from error
     vehicle_envs = _vehicle_envs(env_config, fleet_size, federation)
     round_factors = _round_factors(
-        federation["round_arrival_period_factors"], plan.num_rounds, vehicle_envs or (env_config,)
+        federation["round_arrival_period_factors"], plan, vehicle_envs or (env_config,)
     )
     budget_by_task = _budget_by_task(budget_by_task, plan, agent_config)
     if plan.aggregates and strategy.needs_global_model and not plan.shares_initial_model:
@@ -418,13 +418,14 @@ def _vehicle_envs(
 
 
 def _round_factors(
-    factors: list[float] | None, num_rounds: int, envs: tuple[EnvConfig, ...]
+    factors: list[float] | None, plan: FederationPlan, envs: tuple[EnvConfig, ...]
 ) -> tuple[float, ...]:
     """``federation.round_arrival_period_factors`` checked against the run's rounds and
     every traffic it scales; empty where none is set."""
     key = "federation.round_arrival_period_factors"
     if not factors:
         return ()
+    num_rounds = plan.num_rounds
     if len(factors) > num_rounds:
         raise ConfigError(
             f"{key} has {len(factors)} entries for a run of {num_rounds} "
