@@ -28,7 +28,7 @@ from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
 from frl.agents.learn import acting_step, read_losses
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
-from frl.federation.traffic_schedule import scheduled_env
+from frl.federation.traffic_schedule import scheduled_env, with_arrival_period
 from frl.federation.vehicle_snapshot import (
     VehicleSnapshot,
     read_vehicle_snapshot,
@@ -466,10 +466,7 @@ class VehicleClient:
         # The drive goes on in the traffic it was in (a round schedule may have changed it).
         period = state.get("arrival_period_steps")
         if period is not None:
-            scenario = dataclasses.replace(
-                self._own_env.scenario, human_arrival_period_steps=float(period)
-            )
-            self._drive_in(dataclasses.replace(self._own_env, scenario=scenario))
+            self._drive_in(with_arrival_period(self._own_env, float(period)))
         path = snapshot_path(directory, self.name)
         if not path.exists():
             self._observation = None

@@ -35,11 +35,13 @@ def with_period_factor(env: EnvConfig, factor: float) -> EnvConfig:
     """``env`` with its humans' mean arrival period times ``factor`` (``env`` at 1)."""
     if factor == 1.0:
         return env
-    scenario = env.scenario
-    period = scenario.human_arrival_period_steps * factor
-    return dataclasses.replace(
-        env, scenario=dataclasses.replace(scenario, human_arrival_period_steps=period)
-    )
+    return with_arrival_period(env, env.scenario.human_arrival_period_steps * factor)
+
+
+def with_arrival_period(env: EnvConfig, period_steps: float) -> EnvConfig:
+    """``env`` with its humans' mean arrival period set to ``period_steps``."""
+    scenario = dataclasses.replace(env.scenario, human_arrival_period_steps=period_steps)
+    return dataclasses.replace(env, scenario=scenario)
 
 
 def describe_schedule(factors: Sequence[float], num_rounds: int) -> str:
