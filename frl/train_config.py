@@ -45,7 +45,7 @@ from frl.federation.plan import (
 from frl.federation.reachability import unreachable_reason
 from frl.federation.run_settings import FlowerSettings, TrainSettings
 from frl.federation.strategies import StrategySpec
-from frl.federation.traffic_schedule import with_period_factor
+from frl.federation.traffic_schedule import with_arrival_period, with_period_factor
 from frl.federation.workers import available_cores
 from frl.policies import DEFAULT_YARDSTICKS, YARDSTICKS, check_teacher
 from frl.retirement import RetiredOptionError, without_retired
@@ -398,22 +398,21 @@ def _vehicle_envs(
             )
     envs = []
     for index in range(fleet_size):
-        scenario = env.scenario
+        vehicle_env = env
         if presets is not None:
             if presets[index] not in TRAFFIC_PRESETS:
                 raise ConfigError(
                     f"unknown traffic preset {presets[index]!r} in federation.vehicle_traffic; "
                     f"choose from {', '.join(TRAFFIC_PRESETS)}"
                 )
-            scenario = dataclasses.replace(scenario, **TRAFFIC_PRESETS[presets[index]])
+            scenario = dataclasses.replace(env.scenario, **TRAFFIC_PRESETS[presets[index]])
+            vehicle_env = dataclasses.replace(env, scenario=scenario)
         if periods is not None:
             try:
-                scenario = dataclasses.replace(
-                    scenario, human_arrival_period_steps=float(periods[index])
-                )
+                vehicle_env = with_arrival_period(vehicle_env, float(periods[index]))
             except ValueError as error:
                 raise ConfigError(f"federation.vehicle_arrival_period_steps: {error}") from None
-        envs.append(dataclasses.replace(env, scenario=scenario))
+        envs.append(vehicle_env)
     return tuple(envs)
 
 

@@ -15,9 +15,9 @@ from collections.abc import Sequence
 from frl.envs import EnvConfig
 
 
-def round_index(env_steps: int, round_steps: int) -> int:
-    """The 0-based round of a vehicle's own training that ``env_steps`` lies in."""
-    return env_steps // round_steps
+def round_factor(factors: Sequence[float], round_index: int) -> float:
+    """The factor of 0-based round ``round_index``: its entry, or the list's last one."""
+    return factors[min(round_index, len(factors) - 1)]
 
 
 def scheduled_env(
@@ -27,8 +27,7 @@ def scheduled_env(
     starts after ``env_steps`` steps of its training; ``env`` itself without a schedule."""
     if not factors:
         return env
-    factor = factors[min(round_index(env_steps, round_steps), len(factors) - 1)]
-    return with_period_factor(env, factor)
+    return with_period_factor(env, round_factor(factors, env_steps // round_steps))
 
 
 def with_period_factor(env: EnvConfig, factor: float) -> EnvConfig:
@@ -47,7 +46,7 @@ def with_arrival_period(env: EnvConfig, period_steps: float) -> EnvConfig:
 def describe_schedule(factors: Sequence[float], num_rounds: int) -> str:
     """The schedule in words for the training log, e.g. ``rounds 1-3 at 0.6 times the
     humans' arrival period, rounds 4-5 at the run's``."""
-    per_round = [factors[min(r, len(factors) - 1)] for r in range(num_rounds)]
+    per_round = [round_factor(factors, r) for r in range(num_rounds)]
     spans: list[tuple[int, int, float]] = []
     for number, factor in enumerate(per_round, start=1):
         if spans and spans[-1][2] == factor:
