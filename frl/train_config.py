@@ -17,7 +17,6 @@ starts. Library classes never see a DictConfig.
 from __future__ import annotations
 
 import dataclasses
-import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -45,7 +44,6 @@ from frl.federation.plan import (
 from frl.federation.reachability import unreachable_reason
 from frl.federation.run_settings import FlowerSettings, TrainSettings
 from frl.federation.strategies import StrategySpec
-from frl.federation.traffic_schedule import with_arrival_period, with_period_factor
 from frl.federation.workers import available_cores
 from frl.policies import DEFAULT_YARDSTICKS, YARDSTICKS, check_teacher
 from frl.retirement import RetiredOptionError, without_retired
@@ -160,10 +158,6 @@ FederationSchema = schema_of(
         # Per vehicle, a traffic preset (frl.envs.TRAFFIC_PRESETS); null: env.scenario.
         ("vehicle_arrival_period_steps", list[float] | None, None),
         # Per vehicle, the humans' mean arrival period; null: its traffic's.
-        ("round_arrival_period_factors", list[float] | None, None),
-        # Per round of a vehicle's training, a factor on its humans' arrival period
-        # (0.6: busier); a shorter list holds its last entry; null: none. Tests keep the
-        # run's traffic (frl.federation.traffic_schedule).
     ),
 )
 
@@ -313,9 +307,6 @@ def validate(
     except (ValueError, TypeError) as error:
         raise ConfigError(str(error)) from error
     vehicle_envs = _vehicle_envs(env_config, fleet_size, federation)
-    round_factors = _round_factors(
-        federation["round_arrival_period_factors"], plan, vehicle_envs or (env_config,)
-    )
     budget_by_task = _budget_by_task(budget_by_task, plan, agent_config)
     if plan.aggregates and strategy.needs_global_model and not plan.shares_initial_model:
         raise ConfigError(
@@ -356,7 +347,6 @@ def validate(
         cores=cores,
         strategy=strategy,
         vehicle_envs=vehicle_envs,
-        round_arrival_period_factors=round_factors,
         workers=federation["workers"],
         stack_updates=stack_updates,
         round_test_episodes=data["round_test_episodes"],
@@ -398,48 +388,23 @@ def _vehicle_envs(
             )
     envs = []
     for index in range(fleet_size):
-        vehicle_env = env
+        scenario = env.scenario
         if presets is not None:
             if presets[index] not in TRAFFIC_PRESETS:
                 raise ConfigError(
                     f"unknown traffic preset {presets[index]!r} in federation.vehicle_traffic; "
                     f"choose from {', '.join(TRAFFIC_PRESETS)}"
                 )
-            scenario = dataclasses.replace(env.scenario, **TRAFFIC_PRESETS[presets[index]])
-            vehicle_env = dataclasses.replace(env, scenario=scenario)
+            scenario = dataclasses.replace(scenario, **TRAFFIC_PRESETS[presets[index]])
         if periods is not None:
             try:
-                vehicle_env = with_arrival_period(vehicle_env, float(periods[index]))
+                scenario = dataclasses.replace(
+                    scenario, human_arrival_period_steps=float(periods[index])
+                )
             except ValueError as error:
                 raise ConfigError(f"federation.vehicle_arrival_period_steps: {error}") from None
-        envs.append(vehicle_env)
+        envs.append(dataclasses.replace(env, scenario=scenario))
     return tuple(envs)
-
-
-def _round_factors(
-    factors: list[float] | None, plan: FederationPlan, envs: tuple[EnvConfig, ...]
-) -> tuple[float, ...]:
-    """``federation.round_arrival_period_factors`` checked against the run's rounds and
-    every traffic it scales; empty where none is set."""
-    key = "federation.round_arrival_period_factors"
-    if not factors:
-        return ()
-    num_rounds = plan.num_rounds
-    if len(factors) > num_rounds:
-        raise ConfigError(
-            f"{key} has {len(factors)} entries for a run of {num_rounds} "
-            f"round{'s' * (num_rounds > 1)}; give at most one per round"
-        )
-    for factor in factors:
-        if not (isinstance(factor, int | float) and math.isfinite(factor) and factor > 0):
-            raise ConfigError(f"{key} must hold positive numbers, got {factor!r}")
-    for env in envs:
-        for factor in set(factors):
-            try:
-                with_period_factor(env, float(factor))
-            except ValueError as error:
-                raise ConfigError(f"{key}: {error}") from None
-    return tuple(float(factor) for factor in factors)
 
 
 def check_device(name: str) -> str:

@@ -32,7 +32,6 @@ from frl.federation.tensorboard import (
     TrainingLogger,
     mean_over_clients,
 )
-from frl.federation.traffic_schedule import describe_schedule
 from frl.federation.workers import ClientFailure
 from frl.fileio import read_json, write_json_atomic
 from frl.provenance import versions
@@ -123,11 +122,6 @@ def train(
             "collision budget: %g collisions per training episode per vehicle (a cost critic "
             "and a Lagrange multiplier per vehicle; agent.collision_budget=null: none)",
             settings.agent.collision_budget,
-        )
-    if settings.round_arrival_period_factors:
-        log.info(
-            "training traffic: %s; tests on the run's (federation.round_arrival_period_factors)",
-            describe_schedule(settings.round_arrival_period_factors, settings.plan.num_rounds),
         )
 
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -283,7 +277,6 @@ def training_results(
                 if settings.vehicle_envs is None
                 else [traffic_label(env.scenario) for env in settings.vehicle_envs]
             ),
-            "round_arrival_period_factors": (list(settings.round_arrival_period_factors) or None),
             "vehicle_steps": {
                 spec.name: state.vehicle_steps.get(spec.name, 0) for spec in client_specs(settings)
             },

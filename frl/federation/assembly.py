@@ -34,8 +34,6 @@ def client_specs(settings: TrainSettings) -> list[ClientSpec]:
             device=settings.device,
             init_seed=init_seed,
             proximal_mu=mu,
-            round_arrival_period_factors=settings.round_arrival_period_factors,
-            round_steps=plan.interval if settings.round_arrival_period_factors else 0,
         )
         for index, (task, (agent_seed, env_seed)) in enumerate(
             zip(tasks, client_seeds(settings.seed, len(tasks)), strict=True)

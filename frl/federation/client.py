@@ -28,7 +28,6 @@ from frl.agents import DDPG, DDPGConfig, discounted_returns, is_target_key
 from frl.agents.learn import acting_step, read_losses
 from frl.envs import EnvConfig, IntersectionEnv, RewardConfig
 from frl.episodes import EpisodeRecord, Policy, run_episodes, speed_summary
-from frl.federation.traffic_schedule import scheduled_env, with_arrival_period
 from frl.federation.vehicle_snapshot import (
     VehicleSnapshot,
     read_vehicle_snapshot,
@@ -86,17 +85,6 @@ class ClientSpec:
     proximal_mu: float = 0.0
     """FedProx: weight of mu/2 ||w - w_global||^2 in the critic and actor losses, w_global
     the global model last received (0: plain local training)."""
-    round_arrival_period_factors: tuple[float, ...] = ()
-    """Each round's factor on ``env``'s human arrival period
-    (:mod:`frl.federation.traffic_schedule`); empty: ``env`` throughout."""
-    round_steps: int = 0
-    """Environment steps of a round (the schedule's unit; 0 without a schedule)."""
-
-    def __post_init__(self) -> None:
-        # JSON brings the factors back as a list; the spec stays hashable and comparable.
-        object.__setattr__(
-            self, "round_arrival_period_factors", tuple(self.round_arrival_period_factors)
-        )
 
     @property
     def name(self) -> str:
@@ -196,9 +184,7 @@ class VehicleClient:
 
     def __init__(self, spec: ClientSpec) -> None:
         self.spec = spec
-        self._own_env = dataclasses.replace(spec.env, task=spec.task)
-        """This vehicle's traffic without the round schedule: the one it is tested on."""
-        self.env = IntersectionEnv(self._own_env, spec.reward)
+        self.env = IntersectionEnv(dataclasses.replace(spec.env, task=spec.task), spec.reward)
         self.agent = DDPG(
             self.env.observation_space,
             self.env.action_space,
@@ -273,7 +259,6 @@ class VehicleClient:
         for i in range(num_steps):
             if self._observation is None:
                 self._start_episode()
-                env = self.env  # the round's traffic may have replaced it
             observation = self._observation
             # The others' steps are not this vehicle's time; the shared acting and updates
             # are (the driver adds their share).
@@ -349,14 +334,6 @@ class VehicleClient:
         )
 
     def _start_episode(self) -> None:
-        self._drive_in(
-            scheduled_env(
-                self._own_env,
-                self.spec.round_arrival_period_factors,
-                self.spec.round_steps,
-                self.agent.num_env_steps,
-            )
-        )
         if self._needs_restart:
             seed = training_sumo_seed(self.spec.env_seed, self._restarts)
             self._observation, _ = self.env.reset(seed=seed)
@@ -369,16 +346,6 @@ class VehicleClient:
         self._episode_rewards = []
         self._episode_speeds = []
         self.agent.episode_start()
-
-    def _drive_in(self, config: EnvConfig) -> None:
-        """Drive ``config`` from the next episode on: a new simulation where the traffic
-        changes (libsumo holds one per process, so the old one closes first)."""
-        if config == self.env.config:
-            return
-        self.env.close()
-        self.env = IntersectionEnv(config, self.spec.reward)
-        install_guide(self.agent, config)
-        self._needs_restart = True
 
     def _critic_bias(self) -> float:
         """Mean Q(s_t, a_t) - G_t over the episode that just terminated (critic bias)."""
@@ -421,9 +388,7 @@ class VehicleClient:
         """Test episodes with exploration off, one per seed (restarts SUMO each time).
 
         The episode in progress, if any, is dropped; training resumes on a fresh start.
-        Tests run on the vehicle's own traffic, whatever its round schedule drives.
         """
-        self._drive_in(self._own_env)
         records = run_episodes(self.env, self.policy(), task, seeds, self.agent.episode_start)
         self._observation = None
         self._needs_restart = True
@@ -444,7 +409,6 @@ class VehicleClient:
                 "episodes_total": self._episodes_total,
                 "last_return": self._last_return,
                 "num_env_steps": self.agent.num_env_steps,
-                "arrival_period_steps": self.env.config.scenario.human_arrival_period_steps,
             },
         )
 
@@ -463,10 +427,6 @@ class VehicleClient:
         self._restarts = int(state["restarts"])
         self._episodes_total = int(state["episodes_total"])
         self._last_return = state["last_return"]
-        # The drive goes on in the traffic it was in (a round schedule may have changed it).
-        period = state.get("arrival_period_steps")
-        if period is not None:
-            self._drive_in(with_arrival_period(self._own_env, float(period)))
         path = snapshot_path(directory, self.name)
         if not path.exists():
             self._observation = None

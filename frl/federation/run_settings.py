@@ -51,9 +51,6 @@ class TrainSettings:
     strategy: StrategySpec = field(default_factory=StrategySpec)
     vehicle_envs: tuple[EnvConfig, ...] | None = None
     """Each vehicle's training environment where the fleet's traffic differs; None: ``env``."""
-    round_arrival_period_factors: tuple[float, ...] = ()
-    """Each round's factor on the vehicles' human arrival period in training
-    (:mod:`frl.federation.traffic_schedule`); empty: their own traffic throughout."""
     workers: int = 0
     stack_updates: bool = False
     """The vehicles a worker process hosts train in lockstep and learn in one stacked
