@@ -6,7 +6,8 @@ as if the key were absent, so every run and checkpoint made before the retiremen
 reads. Any other value is refused in one line that names the key, the study that measured
 it (a section of docs/studies.md) and the commit that retired it, where the code is still
 there to read. Each config group keeps its own table (:mod:`frl.agents.retired`,
-:data:`frl.envs.config.RETIRED_ENV_OPTIONS`, :data:`frl.envs.config.RETIRED_REWARD_OPTIONS`).
+:data:`frl.envs.config.RETIRED_ENV_OPTIONS`, :data:`frl.envs.config.RETIRED_REWARD_OPTIONS`,
+:data:`frl.federation.run_settings.RETIRED_FEDERATION_OPTIONS`).
 """
 
 from __future__ import annotations

@@ -30,6 +30,7 @@ from omegaconf import DictConfig
 from frl.agents.config import GROUPS, flat_key_message
 from frl.agents.retired import RETIRED_OPTIONS, without_retired_critic
 from frl.envs.config import RETIRED_ENV_OPTIONS, RETIRED_REWARD_OPTIONS
+from frl.federation.run_settings import RETIRED_FEDERATION_OPTIONS
 from frl.federation.workers import ClientFailure
 from frl.retirement import RetiredOptionError, without_retired
 from frl.run_directory import RunDirectoryError, check_can_make, names_a_run
@@ -124,13 +125,14 @@ RETIRED_BY_GROUP = {
     "agent": RETIRED_OPTIONS,
     "env": RETIRED_ENV_OPTIONS,
     "reward": RETIRED_REWARD_OPTIONS,
+    "federation": RETIRED_FEDERATION_OPTIONS,
 }
 """The retired options of each config group (:mod:`frl.retirement`)."""
 
 
 def without_retired_overrides(argv: list[str]) -> list[str]:
     """``argv`` less the overrides that set a retired agent (``agent.critic`` included),
-    env or reward option to its off value (:mod:`frl.retirement`), which change nothing.
+    env, reward or federation option to its off value (:mod:`frl.retirement`), which change nothing.
 
     Raises:
         RetiredOptionError: an override that sets one to any other value.

@@ -42,7 +42,11 @@ from frl.federation.plan import (
     FederationPlan,
 )
 from frl.federation.reachability import unreachable_reason
-from frl.federation.run_settings import FlowerSettings, TrainSettings
+from frl.federation.run_settings import (
+    RETIRED_FEDERATION_OPTIONS,
+    FlowerSettings,
+    TrainSettings,
+)
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores
 from frl.policies import DEFAULT_YARDSTICKS, YARDSTICKS, check_teacher
@@ -621,8 +625,9 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
       n-step targets or held warm-up actions where it lacks them, today's default having
       both; retired options at their off values dropped, a run that used one refused in
       one line; keys that moved into groups (``noise_sigma``: ``noise.sigma``) moved.
-    - Retired env and reward options (:data:`frl.envs.config.RETIRED_ENV_OPTIONS`, ...)
-      likewise: dropped at their off values, refused at any other.
+    - Retired env, reward and federation options
+      (:data:`frl.envs.config.RETIRED_ENV_OPTIONS`, ...) likewise: dropped at their off
+      values, refused at any other.
     - No ``config_version`` (format 1): ``interval`` counted environment steps; it becomes
       the updates of those steps (``interval / agent.train_freq``), the same rounds.
     - ``probe``: the counterfactual probe, retired (:data:`PROBE_RETIREMENT`). Saved off
@@ -636,11 +641,14 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
             saved["agent"] = agent_fields_as_run(saved["agent"])
         except RetiredOptionError as error:
             raise ConfigError(str(error)) from None
-    try:  # env and reward options retired as the agent's are
-        if isinstance(saved.get("env"), dict):
-            saved["env"] = without_retired(saved["env"], RETIRED_ENV_OPTIONS, "env")
-        if isinstance(saved.get("reward"), dict):
-            saved["reward"] = without_retired(saved["reward"], RETIRED_REWARD_OPTIONS, "reward")
+    try:  # env, reward and federation options retired as the agent's are
+        for group, retired in (
+            ("env", RETIRED_ENV_OPTIONS),
+            ("reward", RETIRED_REWARD_OPTIONS),
+            ("federation", RETIRED_FEDERATION_OPTIONS),
+        ):
+            if isinstance(saved.get(group), dict):
+                saved[group] = without_retired(saved[group], retired, group)
     except RetiredOptionError as error:
         raise ConfigError(str(error)) from None
     env = dict(saved.get("env") or {})

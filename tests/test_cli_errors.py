@@ -97,6 +97,10 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], prefix: str,
         ("reward.brake_past_line_cost=0.1", "reward.brake_past_line_cost=0.1 was retired"),
         ("env.commit_at_line=true", "env.commit_at_line=True was retired"),
         (
+            "federation.round_arrival_period_factors=[0.6,1]",
+            "federation.round_arrival_period_factors=[0.6, 1] was retired",
+        ),
+        (
             "+agent.collision_budget_by_task={left:0.1,straight:0.02}",
             "collision_budget_by_task must name each task of the fleet once (left, straight, "
             "right), got left, straight",

@@ -85,6 +85,23 @@ def test_a_retired_reward_override_at_off_is_dropped_from_the_command_line():
     assert without_retired_overrides(argv) == ["seed=1", "reward.alpha=0"]
 
 
+def test_the_retired_traffic_by_round_loads_off_and_is_refused_on():
+    """Run configs saved while traffic by round existed (null: none) still read; one
+    that trained with a schedule is refused in one line naming the study."""
+    from frl.train import without_retired_overrides
+    from frl.train_config import ConfigError, migrate_saved_config
+
+    key = "round_arrival_period_factors"
+    saved = {"federation": {"strategy": "fedavg", key: None}}
+    assert migrate_saved_config(saved)["federation"] == {"strategy": "fedavg"}
+    with pytest.raises(
+        ConfigError,
+        match=rf"^federation\.{key}=\[0\.6, 1\] was retired: docs/studies\.md, \"Busy rounds",
+    ):
+        migrate_saved_config({"federation": {key: [0.6, 1]}})
+    assert without_retired_overrides([f"federation.{key}=null", "seed=1"]) == ["seed=1"]
+
+
 def test_reference_reward_by_name():
     reference = RewardConfig.named("reference")
     step = sum(reward_terms(signals(moving=True), reference).values())

@@ -11,6 +11,14 @@ from frl.agents import DDPGConfig
 from frl.envs import EnvConfig, RewardConfig
 from frl.federation.plan import FederationPlan
 from frl.federation.strategies import StrategySpec
+from frl.retirement import RetiredOption
+
+RETIRED_FEDERATION_OPTIONS: dict[str, RetiredOption] = {
+    "round_arrival_period_factors": RetiredOption(
+        None, '"Busy rounds, then the paper\'s traffic"', "8450bc8"
+    ),
+}
+"""Federation options that frl retired (:mod:`frl.retirement`)."""
 
 
 @dataclass(frozen=True)
