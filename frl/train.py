@@ -132,7 +132,8 @@ RETIRED_BY_GROUP = {
 
 def without_retired_overrides(argv: list[str]) -> list[str]:
     """``argv`` less the overrides that set a retired agent (``agent.critic`` included),
-    env, reward or federation option to its off value (:mod:`frl.retirement`), which change nothing.
+    env, reward or federation option to its off value (:mod:`frl.retirement`), which
+    change nothing.
 
     Raises:
         RetiredOptionError: an override that sets one to any other value.
