@@ -29,13 +29,17 @@ from omegaconf import DictConfig
 
 from frl.agents.config import GROUPS, flat_key_message
 from frl.agents.retired import RETIRED_OPTIONS, without_retired_critic
-from frl.envs.config import RETIRED_ENV_OPTIONS, RETIRED_REWARD_OPTIONS
-from frl.federation.run_settings import RETIRED_FEDERATION_OPTIONS
 from frl.federation.workers import ClientFailure
 from frl.retirement import RetiredOptionError, without_retired
 from frl.run_directory import RunDirectoryError, check_can_make, names_a_run
 from frl.run_opening import open_run
-from frl.train_config import ConfigError, one_line_error, register_configs, validate
+from frl.train_config import (
+    RETIRED_OUTSIDE_AGENT,
+    ConfigError,
+    one_line_error,
+    register_configs,
+    validate,
+)
 from frl.training import train
 
 __all__ = ["main", "train"]
@@ -121,12 +125,7 @@ def failure_summary(failure: ClientFailure) -> str:
     )
 
 
-RETIRED_BY_GROUP = {
-    "agent": RETIRED_OPTIONS,
-    "env": RETIRED_ENV_OPTIONS,
-    "reward": RETIRED_REWARD_OPTIONS,
-    "federation": RETIRED_FEDERATION_OPTIONS,
-}
+RETIRED_BY_GROUP = {"agent": RETIRED_OPTIONS, **RETIRED_OUTSIDE_AGENT}
 """The retired options of each config group (:mod:`frl.retirement`)."""
 
 

@@ -50,7 +50,7 @@ from frl.federation.run_settings import (
 from frl.federation.strategies import StrategySpec
 from frl.federation.workers import available_cores
 from frl.policies import DEFAULT_YARDSTICKS, YARDSTICKS, check_teacher
-from frl.retirement import RetiredOptionError, without_retired
+from frl.retirement import RetiredOption, RetiredOptionError, without_retired
 from frl.run_directory import read_saved_config
 
 
@@ -605,6 +605,15 @@ def complete_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     return _complete(migrate_saved_config(saved))
 
 
+RETIRED_OUTSIDE_AGENT: dict[str, dict[str, RetiredOption]] = {
+    "env": RETIRED_ENV_OPTIONS,
+    "reward": RETIRED_REWARD_OPTIONS,
+    "federation": RETIRED_FEDERATION_OPTIONS,
+}
+"""The retired options of each config group but the agent's, whose table
+(:mod:`frl.agents.retired`) also holds its nested groups' (:mod:`frl.retirement`)."""
+
+
 PROBE_RETIREMENT = (
     'was retired: docs/studies.md, "A collision budget", measured the counterfactual probe '
     "as not helping, and commit 9b53480 holds its code; only probe.rate=0 (off) still loads"
@@ -642,11 +651,7 @@ def migrate_saved_config(saved: dict[str, Any]) -> dict[str, Any]:
         except RetiredOptionError as error:
             raise ConfigError(str(error)) from None
     try:  # env, reward and federation options retired as the agent's are
-        for group, retired in (
-            ("env", RETIRED_ENV_OPTIONS),
-            ("reward", RETIRED_REWARD_OPTIONS),
-            ("federation", RETIRED_FEDERATION_OPTIONS),
-        ):
+        for group, retired in RETIRED_OUTSIDE_AGENT.items():
             if isinstance(saved.get(group), dict):
                 saved[group] = without_retired(saved[group], retired, group)
     except RetiredOptionError as error:
